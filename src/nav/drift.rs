@@ -1,0 +1,82 @@
+//! Drift metrics: how far a navigated state is from the truth.
+
+use nalgebra::UnitQuaternion;
+
+use super::navigator::NavState;
+use super::trajectory::TruthState;
+
+/// Navigation error at one horizon.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriftSample {
+    pub horizon_s: f64,
+    /// |omega_nav - omega_true|, rad/s.
+    pub rate_err_rad_s: f64,
+    /// Rotation angle of `q_true^-1 q_nav`, rad.
+    pub attitude_err_rad: f64,
+    /// |v_nav - v_true|, m/s.
+    pub velocity_err_m_s: f64,
+    /// |r_nav - r_true|, m.
+    pub position_err_m: f64,
+}
+
+impl DriftSample {
+    pub fn new(horizon_s: f64, nav: &NavState, truth: &TruthState) -> Self {
+        Self {
+            horizon_s,
+            rate_err_rad_s: (nav.omega_b_rad_s - truth.omega_b_rad_s).norm(),
+            attitude_err_rad: attitude_error_rad(&truth.q_b_i, &nav.q_b_i),
+            velocity_err_m_s: (nav.v_i_m_s - truth.v_i_m_s).norm(),
+            position_err_m: (nav.r_i_m - truth.r_i_m).norm(),
+        }
+    }
+}
+
+/// Angle of the rotation between two attitudes, in [0, pi], computed as
+/// `2 atan2(|vec(dq)|, |scalar(dq)|)`: accurate for tiny angles, unlike `acos` of a trace.
+pub fn attitude_error_rad(q_true: &UnitQuaternion<f64>, q_nav: &UnitQuaternion<f64>) -> f64 {
+    let dq = q_true.inverse() * q_nav;
+    2.0 * dq.imag().norm().atan2(dq.scalar().abs())
+}
+
+/// Drift of one compensation at one horizon.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DriftRow {
+    /// Which parameters compensated the outputs (e.g. "nominal", "true").
+    pub compensation: String,
+    pub sample: DriftSample,
+}
+
+/// Navigates the noise-free outputs of an array with true parameters `truth` along `trajectory`,
+/// once per compensation, and returns the drift at every horizon.
+pub fn drift_study(
+    array: &crate::array::Array,
+    truth: &crate::sensor::ArrayParams,
+    compensations: &[(&str, &crate::sensor::ArrayParams)],
+    trajectory: &super::Trajectory,
+    gravity_m_s2: f64,
+    step_s: f64,
+    horizons_s: &[f64],
+) -> Result<Vec<DriftRow>, crate::array::RankError> {
+    let gravity_i = nalgebra::Vector3::new(0.0, 0.0, -gravity_m_s2);
+    let mut rows = Vec::new();
+    for (name, params) in compensations {
+        let mut compensator = crate::sensor::Compensator::new(array, params)?;
+        let mut source = crate::sensor::SimulatedArray::<rand_chacha::ChaCha8Rng>::new(
+            array, truth, trajectory, gravity_i,
+        );
+        for sample in super::navigate(
+            trajectory,
+            &mut source,
+            &mut compensator,
+            &gravity_i,
+            step_s,
+            horizons_s,
+        ) {
+            rows.push(DriftRow {
+                compensation: (*name).to_string(),
+                sample,
+            });
+        }
+    }
+    Ok(rows)
+}

@@ -1,0 +1,15 @@
+//! Navigation with an accelerometer array (Hung & Lee 2006, eq. 1-4) and its drift against truth.
+//!
+//! States: attitude `q_b_i` (body to inertial), body rate `omega_b`, inertial velocity `v_i` and
+//! position `r_i`. `dq/dt = q (0, omega_b) / 2`, `d omega_b/dt = alpha_b`, `dv_i/dt = C_b^i a_o`,
+//! `dr_i/dt = v_i`, with `(alpha_b, a_o)` solved from the outputs through the compensation
+//! parameters and the *navigated* rate and attitude (gravity in body axes). A constant error
+//! therefore grows as t in rate, t^2 in attitude, t^3 in velocity and t^4 in position.
+
+pub mod drift;
+pub mod navigator;
+pub mod trajectory;
+
+pub use drift::{DriftRow, DriftSample, drift_study};
+pub use navigator::{NavState, navigate};
+pub use trajectory::{InitialState, Segment, Trajectory, TruthState};
