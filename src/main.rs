@@ -69,10 +69,7 @@ fn drift(config_path: &std::path::Path, csv: Option<&std::path::Path>) -> anyhow
     let rows = drift_study(
         &cfg.array,
         &cfg.errors.truth,
-        &[
-            ("nominal", &cfg.errors.nominal),
-            ("true", &cfg.errors.truth),
-        ],
+        &[("nominal", &cfg.errors.nominal), ("true", &cfg.errors.truth)],
         &cfg.trajectory,
         nav.gravity_m_s2,
         nav.step_s,
@@ -97,23 +94,13 @@ fn drift(config_path: &std::path::Path, csv: Option<&std::path::Path>) -> anyhow
 fn drift_table(rows: &[DriftRow]) -> String {
     let mut s = format!(
         "{:<12} {:>10} {:>16} {:>16} {:>16} {:>16}\n",
-        "compensation",
-        "horizon_s",
-        "rate_err_rad_s",
-        "attitude_err_rad",
-        "velocity_err_m_s",
-        "position_err_m"
+        "compensation", "horizon_s", "rate_err_rad_s", "attitude_err_rad", "velocity_err_m_s", "position_err_m"
     );
     for r in rows {
         let d = &r.sample;
         s.push_str(&format!(
             "{:<12} {:>10} {:>16.4e} {:>16.4e} {:>16.4e} {:>16.4e}\n",
-            r.compensation,
-            d.horizon_s,
-            d.rate_err_rad_s,
-            d.attitude_err_rad,
-            d.velocity_err_m_s,
-            d.position_err_m
+            r.compensation, d.horizon_s, d.rate_err_rad_s, d.attitude_err_rad, d.velocity_err_m_s, d.position_err_m
         ));
     }
     s

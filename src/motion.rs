@@ -33,10 +33,7 @@ impl RigidMotion {
     /// Spinning at constant rate `omega_b_rad_s` about an axis through the body origin, with
     /// `up_b` pointing up (Hung & Lee 2006, Section 4, eq. 12).
     pub fn spinning(omega_b_rad_s: &Vector3<f64>, up_b: &Vector3<f64>, g_m_s2: f64) -> Self {
-        Self {
-            omega_b_rad_s: *omega_b_rad_s,
-            ..Self::at_rest(up_b, g_m_s2)
-        }
+        Self { omega_b_rad_s: *omega_b_rad_s, ..Self::at_rest(up_b, g_m_s2) }
     }
 
     /// Motion from an inertial description: attitude `q_b_i` (body to inertial), inertial
@@ -60,7 +57,6 @@ impl RigidMotion {
     /// Specific force at body point `r_b_m`, m/s^2.
     pub fn specific_force_m_s2(&self, r_b_m: &Vector3<f64>) -> Vector3<f64> {
         let w = &self.omega_b_rad_s;
-        self.accel_b_m_s2 + self.alpha_b_rad_s2.cross(r_b_m) + w.cross(&w.cross(r_b_m))
-            - self.gravity_b_m_s2
+        self.accel_b_m_s2 + self.alpha_b_rad_s2.cross(r_b_m) + w.cross(&w.cross(r_b_m)) - self.gravity_b_m_s2
     }
 }

@@ -17,9 +17,7 @@ pub struct Accelerometer {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum ArrayError {
-    #[error(
-        "an array needs at least 6 accelerometers to sense 6 rigid-body accelerations, got {count}"
-    )]
+    #[error("an array needs at least 6 accelerometers to sense 6 rigid-body accelerations, got {count}")]
     TooFew { count: usize },
     #[error("accelerometer {index}: {what} is not finite")]
     NonFinite { index: usize, what: &'static str },
@@ -65,25 +63,16 @@ impl Array {
         for (j, (p, a)) in positions_m.iter().zip(axes).enumerate() {
             let index = j + 1;
             if !p.iter().all(|v| v.is_finite()) {
-                return Err(ArrayError::NonFinite {
-                    index,
-                    what: "position",
-                });
+                return Err(ArrayError::NonFinite { index, what: "position" });
             }
             if !a.iter().all(|v| v.is_finite()) {
-                return Err(ArrayError::NonFinite {
-                    index,
-                    what: "sensitive axis",
-                });
+                return Err(ArrayError::NonFinite { index, what: "sensitive axis" });
             }
             let norm = a.norm();
             if norm < 1e-12 {
                 return Err(ArrayError::ZeroAxis { index });
             }
-            accelerometers.push(Accelerometer {
-                position_m: *p,
-                axis: a / norm,
-            });
+            accelerometers.push(Accelerometer { position_m: *p, axis: a / norm });
         }
         let mut in_triad = vec![false; count];
         for (t, triad) in triads.iter().enumerate() {
@@ -92,10 +81,7 @@ impl Array {
                 if std::mem::replace(&mut in_triad[k], true) {
                     return Err(ArrayError::BadTriad {
                         triad: t + 1,
-                        problem: format!(
-                            "accelerometer {} already belongs to another triad",
-                            k + 1
-                        ),
+                        problem: format!("accelerometer {} already belongs to another triad", k + 1),
                     });
                 }
             }
@@ -103,12 +89,7 @@ impl Array {
         let positions: Vec<_> = accelerometers.iter().map(|a| a.position_m).collect();
         let unit_axes: Vec<_> = accelerometers.iter().map(|a| a.axis).collect();
         let mechanization = Mechanization::new(&positions, &unit_axes)?;
-        Ok(Self {
-            name: name.into(),
-            accelerometers,
-            triads,
-            mechanization,
-        })
+        Ok(Self { name: name.into(), accelerometers, triads, mechanization })
     }
 
     /// The six-accelerometer cube of Chen, Lee & DeBra (1994) as in Hung & Lee (2006), Table 1:
@@ -116,22 +97,10 @@ impl Array {
     /// face diagonal. Triads A = (1, 4, 6) and B = (2, 3, 5) (paper Sections 3.1-3.2).
     pub fn cube(rho_m: f64) -> Result<Self, ArrayError> {
         let s = std::f64::consts::FRAC_1_SQRT_2;
-        let p = [
-            [0.0, 0.0, -1.0],
-            [0.0, -1.0, 0.0],
-            [-1.0, 0.0, 0.0],
-            [1.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [0.0, 0.0, 1.0],
-        ];
-        let th = [
-            [1.0, 1.0, 0.0],
-            [1.0, 0.0, 1.0],
-            [0.0, 1.0, 1.0],
-            [0.0, -1.0, 1.0],
-            [-1.0, 0.0, 1.0],
-            [-1.0, 1.0, 0.0],
-        ];
+        let p =
+            [[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let th =
+            [[1.0, 1.0, 0.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [0.0, -1.0, 1.0], [-1.0, 0.0, 1.0], [-1.0, 1.0, 0.0]];
         let positions: Vec<_> = p.iter().map(|v| Vector3::from(*v) * rho_m).collect();
         let axes: Vec<_> = th.iter().map(|v| Vector3::from(*v) * s).collect();
         Self::new("cube", &positions, &axes, vec![[0, 3, 5], [1, 2, 4]])
@@ -165,10 +134,7 @@ impl Array {
     }
     /// The triad holding accelerometer `j` (0-based) and its row in that triad.
     pub fn triad_of(&self, j: usize) -> Option<(usize, usize)> {
-        self.triads
-            .iter()
-            .enumerate()
-            .find_map(|(t, tr)| tr.iter().position(|&k| k == j).map(|row| (t, row)))
+        self.triads.iter().enumerate().find_map(|(t, tr)| tr.iter().position(|&k| k == j).map(|row| (t, row)))
     }
 }
 
@@ -176,21 +142,13 @@ fn check_triad(t: usize, triad: &[usize; 3], accs: &[Accelerometer]) -> Result<(
     let bad = |problem: String| ArrayError::BadTriad { triad: t, problem };
     for &k in triad {
         if k >= accs.len() {
-            return Err(bad(format!(
-                "accelerometer {} does not exist (array has {})",
-                k + 1,
-                accs.len()
-            )));
+            return Err(bad(format!("accelerometer {} does not exist (array has {})", k + 1, accs.len())));
         }
     }
     if triad[0] == triad[1] || triad[0] == triad[2] || triad[1] == triad[2] {
         return Err(bad("an accelerometer appears twice".into()));
     }
-    let m = nalgebra::Matrix3::from_columns(&[
-        accs[triad[0]].axis,
-        accs[triad[1]].axis,
-        accs[triad[2]].axis,
-    ]);
+    let m = nalgebra::Matrix3::from_columns(&[accs[triad[0]].axis, accs[triad[1]].axis, accs[triad[2]].axis]);
     if m.determinant().abs() < 1e-6 {
         return Err(bad(format!(
             "axes of accelerometers {}, {}, {} are not linearly independent",

@@ -61,10 +61,8 @@ impl Mechanization {
             }
         }
         // Normalise the alpha columns by a characteristic length so the rank test is unit-free.
-        let length_m = (positions_m.iter().map(|r| r.norm_squared()).sum::<f64>()
-            / n.max(1) as f64)
-            .sqrt()
-            .max(f64::MIN_POSITIVE);
+        let length_m =
+            (positions_m.iter().map(|r| r.norm_squared()).sum::<f64>() / n.max(1) as f64).sqrt().max(f64::MIN_POSITIVE);
         let mut scaled = matrix.clone();
         for k in 0..3 {
             scaled.column_mut(k).scale_mut(1.0 / length_m);
@@ -79,30 +77,21 @@ impl Mechanization {
             let mut unseen = Vec::new();
             for (i, s) in sv.iter().enumerate() {
                 if *s <= RANK_TOLERANCE * sv_max || sv_max == 0.0 {
-                    unseen.push(unscale(
-                        Vector6::from_iterator(v_t.row(i).iter().copied()),
-                        length_m,
-                    ));
+                    unseen.push(unscale(Vector6::from_iterator(v_t.row(i).iter().copied()), length_m));
                 }
             }
             // With fewer rows than columns the thin SVD omits the null space: complete it.
             if unseen.is_empty() || n < 6 {
                 unseen = null_space_basis(&matrix, length_m);
             }
-            return Err(RankError {
-                unseen,
-                singular_value_ratio: ratio,
-            });
+            return Err(RankError { unseen, singular_value_ratio: ratio });
         }
         let mtm = matrix.transpose() * &matrix;
-        let inv = mtm.try_inverse().ok_or_else(|| RankError {
-            unseen: null_space_basis(&matrix, length_m),
-            singular_value_ratio: ratio,
-        })?;
+        let inv = mtm
+            .try_inverse()
+            .ok_or_else(|| RankError { unseen: null_space_basis(&matrix, length_m), singular_value_ratio: ratio })?;
         let pinv = inv * matrix.transpose();
-        let pinv_rows = (0..n)
-            .map(|j| std::array::from_fn(|k| pinv[(k, j)]))
-            .collect();
+        let pinv_rows = (0..n).map(|j| std::array::from_fn(|k| pinv[(k, j)])).collect();
         Ok(Self {
             matrix,
             pinv_rows,
@@ -155,22 +144,14 @@ impl Mechanization {
         debug_assert_eq!(readings_m_s2.len(), self.len());
         let w = omega_b_rad_s;
         let mut x = [0.0; 6];
-        for (((m, r), th), p) in readings_m_s2
-            .iter()
-            .zip(&self.positions_m)
-            .zip(&self.axes)
-            .zip(&self.pinv_rows)
-        {
+        for (((m, r), th), p) in readings_m_s2.iter().zip(&self.positions_m).zip(&self.axes).zip(&self.pinv_rows) {
             let centripetal = th.dot(&w.cross(&w.cross(r)));
             let y = m - centripetal + th.dot(gravity_b_m_s2);
             for k in 0..6 {
                 x[k] += p[k] * y;
             }
         }
-        RigidAccel {
-            alpha_b_rad_s2: Vector3::new(x[0], x[1], x[2]),
-            accel_b_m_s2: Vector3::new(x[3], x[4], x[5]),
-        }
+        RigidAccel { alpha_b_rad_s2: Vector3::new(x[0], x[1], x[2]), accel_b_m_s2: Vector3::new(x[3], x[4], x[5]) }
     }
 }
 
@@ -193,12 +174,7 @@ fn null_space_basis(matrix: &DMatrix<f64>, length_m: f64) -> Vec<Vector6<f64>> {
     let max = eig.eigenvalues.max().max(f64::MIN_POSITIVE);
     (0..6)
         .filter(|&i| eig.eigenvalues[i] <= RANK_TOLERANCE * RANK_TOLERANCE * max)
-        .map(|i| {
-            unscale(
-                Vector6::from_iterator(eig.eigenvectors.column(i).iter().copied()),
-                length_m,
-            )
-        })
+        .map(|i| unscale(Vector6::from_iterator(eig.eigenvectors.column(i).iter().copied()), length_m))
         .collect()
 }
 

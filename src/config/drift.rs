@@ -40,12 +40,6 @@ impl DriftConfig {
         let navigation = file.navigation.resolve().map_err(|b| b.in_file(path))?;
         let last_s = navigation.horizons_s.last().copied().unwrap_or(0.0);
         let trajectory = file.trajectory.build(last_s).map_err(|b| b.in_file(path))?;
-        Ok(Self {
-            array,
-            errors,
-            trajectory,
-            navigation,
-            text,
-        })
+        Ok(Self { array, errors, trajectory, navigation, text })
     }
 }

@@ -61,10 +61,7 @@ fn scale_factors(key: &str, v: &Option<OneOrEach<f64>>, n: usize) -> Result<Vec<
     for (j, k) in ks.iter().enumerate() {
         let key = format!("{key}[{j}]");
         if finite(&key, *k)? == 0.0 {
-            return Err(Bad::new(
-                key,
-                "a scale factor of zero makes the accelerometer blind",
-            ));
+            return Err(Bad::new(key, "a scale factor of zero makes the accelerometer blind"));
         }
     }
     Ok(ks)
@@ -73,25 +70,14 @@ fn scale_factors(key: &str, v: &Option<OneOrEach<f64>>, n: usize) -> Result<Vec<
 impl ErrorsSection {
     pub fn resolve(&self, array: &Array) -> Result<ErrorSet, Bad> {
         let n = array.len();
-        let bias_mg = self
-            .bias_mg
-            .clone()
-            .unwrap_or(OneOrEach::One(0.0))
-            .expand("errors.bias_mg", n)?;
+        let bias_mg = self.bias_mg.clone().unwrap_or(OneOrEach::One(0.0)).expand("errors.bias_mg", n)?;
         let k = scale_factors("errors.scale_factor", &self.scale_factor, n)?;
-        let k_nominal =
-            scale_factors("errors.nominal_scale_factor", &self.nominal_scale_factor, n)?;
-        let loc_mm = self
-            .location_error_mm
-            .clone()
-            .unwrap_or(OneOrEach::One([0.0; 3]))
-            .expand("errors.location_error_mm", n)?;
+        let k_nominal = scale_factors("errors.nominal_scale_factor", &self.nominal_scale_factor, n)?;
+        let loc_mm =
+            self.location_error_mm.clone().unwrap_or(OneOrEach::One([0.0; 3])).expand("errors.location_error_mm", n)?;
         let misalignment = match (&self.misalignment.triad_deg, &self.misalignment.tilt_deg) {
             (Some(_), Some(_)) => {
-                return Err(Bad::new(
-                    "errors.misalignment",
-                    "give either `triad_deg` or `tilt_deg`, not both",
-                ));
+                return Err(Bad::new("errors.misalignment", "give either `triad_deg` or `tilt_deg`, not both"));
             }
             (Some(triads), None) => {
                 if array.triads().is_empty() {
@@ -103,11 +89,7 @@ impl ErrorsSection {
                 if triads.len() != array.triads().len() {
                     return Err(Bad::new(
                         "errors.misalignment.triad_deg",
-                        format!(
-                            "needs one entry per triad ({}), got {}",
-                            array.triads().len(),
-                            triads.len()
-                        ),
+                        format!("needs one entry per triad ({}), got {}", array.triads().len(), triads.len()),
                     ));
                 }
                 let mut angles = Vec::new();
@@ -135,27 +117,17 @@ impl ErrorsSection {
                 let mut rad = Vec::new();
                 for (j, t) in tilt.iter().enumerate() {
                     let key = format!("errors.misalignment.tilt_deg[{j}]");
-                    rad.push([
-                        finite(&key, t[0])? * RAD_PER_DEG,
-                        finite(&key, t[1])? * RAD_PER_DEG,
-                    ]);
+                    rad.push([finite(&key, t[0])? * RAD_PER_DEG, finite(&key, t[1])? * RAD_PER_DEG]);
                 }
                 Misalignment::Tilt(rad)
             }
         };
-        let axes = misalignment
-            .axes(array)
-            .map_err(|e| Bad::new("errors.misalignment", e.to_string()))?;
+        let axes = misalignment.axes(array).map_err(|e| Bad::new("errors.misalignment", e.to_string()))?;
         let mut sensors = Vec::with_capacity(n);
         for j in 0..n {
             let bias = finite(&format!("errors.bias_mg[{j}]"), bias_mg[j])? * M_S2_PER_MG;
             let loc = super::vec3(&format!("errors.location_error_mm[{j}]"), loc_mm[j])? * M_PER_MM;
-            sensors.push(SensorParams {
-                scale_factor: k[j],
-                bias_m_s2: bias,
-                axis: axes[j],
-                location_error_m: loc,
-            });
+            sensors.push(SensorParams { scale_factor: k[j], bias_m_s2: bias, axis: axes[j], location_error_m: loc });
         }
         Ok(ErrorSet {
             truth: ArrayParams { sensors },

@@ -15,18 +15,11 @@ use serde::de::DeserializeOwned;
 #[non_exhaustive]
 pub enum ConfigError {
     #[error("{}: cannot read: {source}", path.display())]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    Read { path: PathBuf, source: std::io::Error },
     #[error("{}: {message}", path.display())]
     Parse { path: PathBuf, message: String },
     #[error("{}: key `{key}`: {problem}", path.display())]
-    Invalid {
-        path: PathBuf,
-        key: String,
-        problem: String,
-    },
+    Invalid { path: PathBuf, key: String, problem: String },
 }
 
 /// A problem with one key, before the file is known.
@@ -38,47 +31,28 @@ pub struct Bad {
 
 impl Bad {
     pub fn new(key: impl Into<String>, problem: impl Into<String>) -> Self {
-        Self {
-            key: key.into(),
-            problem: problem.into(),
-        }
+        Self { key: key.into(), problem: problem.into() }
     }
     pub fn in_file(self, path: &Path) -> ConfigError {
-        ConfigError::Invalid {
-            path: path.to_path_buf(),
-            key: self.key,
-            problem: self.problem,
-        }
+        ConfigError::Invalid { path: path.to_path_buf(), key: self.key, problem: self.problem }
     }
 }
 
 /// Reads and parses a TOML file; returns the value and the file's text (for provenance).
 pub fn read_toml<T: DeserializeOwned>(path: &Path) -> Result<(T, String), ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let value = toml::from_str(&text).map_err(|e| ConfigError::Parse {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })?;
+    let text =
+        std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
+    let value =
+        toml::from_str(&text).map_err(|e| ConfigError::Parse { path: path.to_path_buf(), message: e.to_string() })?;
     Ok((value, text))
 }
 
 pub(crate) fn finite(key: &str, v: f64) -> Result<f64, Bad> {
-    if v.is_finite() {
-        Ok(v)
-    } else {
-        Err(Bad::new(key, format!("must be a finite number, got {v}")))
-    }
+    if v.is_finite() { Ok(v) } else { Err(Bad::new(key, format!("must be a finite number, got {v}"))) }
 }
 
 pub(crate) fn positive(key: &str, v: f64) -> Result<f64, Bad> {
-    if finite(key, v)? > 0.0 {
-        Ok(v)
-    } else {
-        Err(Bad::new(key, format!("must be positive, got {v}")))
-    }
+    if finite(key, v)? > 0.0 { Ok(v) } else { Err(Bad::new(key, format!("must be positive, got {v}"))) }
 }
 
 pub(crate) fn vec3(key: &str, v: [f64; 3]) -> Result<nalgebra::Vector3<f64>, Bad> {
@@ -102,10 +76,9 @@ impl<T: Clone> OneOrEach<T> {
         match self {
             OneOrEach::One(v) => Ok(vec![v.clone(); n]),
             OneOrEach::Each(vs) if vs.len() == n => Ok(vs.clone()),
-            OneOrEach::Each(vs) => Err(Bad::new(
-                key,
-                format!("needs one value per accelerometer ({n}), got {}", vs.len()),
-            )),
+            OneOrEach::Each(vs) => {
+                Err(Bad::new(key, format!("needs one value per accelerometer ({n}), got {}", vs.len())))
+            }
         }
     }
 }

@@ -74,10 +74,7 @@ impl NavigationSection {
     pub fn resolve(&self) -> Result<NavigationSettings, Bad> {
         let step_s = positive("navigation.step_s", self.step_s)?;
         if self.horizons_s.is_empty() {
-            return Err(Bad::new(
-                "navigation.horizons_s",
-                "needs at least one horizon",
-            ));
+            return Err(Bad::new("navigation.horizons_s", "needs at least one horizon"));
         }
         let mut horizons_s = Vec::new();
         for (k, h) in self.horizons_s.iter().enumerate() {
@@ -85,40 +82,22 @@ impl NavigationSection {
         }
         horizons_s.sort_by(f64::total_cmp);
         horizons_s.dedup();
-        let gravity_m_s2 = positive(
-            "navigation.gravity_m_s2",
-            self.gravity_m_s2.unwrap_or(STANDARD_GRAVITY_M_S2),
-        )?;
-        Ok(NavigationSettings {
-            step_s,
-            horizons_s,
-            gravity_m_s2,
-        })
+        let gravity_m_s2 = positive("navigation.gravity_m_s2", self.gravity_m_s2.unwrap_or(STANDARD_GRAVITY_M_S2))?;
+        Ok(NavigationSettings { step_s, horizons_s, gravity_m_s2 })
     }
 }
 
 impl TrajectorySection {
     /// Builds the trajectory long enough for `horizon_s`.
     pub fn build(&self, horizon_s: f64) -> Result<Trajectory, Bad> {
-        let rpy = vec3(
-            "trajectory.initial_attitude_rpy_deg",
-            self.initial_attitude_rpy_deg.unwrap_or([0.0; 3]),
-        )? * RAD_PER_DEG;
+        let rpy = vec3("trajectory.initial_attitude_rpy_deg", self.initial_attitude_rpy_deg.unwrap_or([0.0; 3]))?
+            * RAD_PER_DEG;
         let q_b_i = UnitQuaternion::from_euler_angles(rpy[0], rpy[1], rpy[2]);
-        let omega = vec3(
-            "trajectory.initial_omega_rad_s",
-            self.initial_omega_rad_s.unwrap_or([0.0; 3]),
-        )?;
-        let velocity = vec3(
-            "trajectory.initial_velocity_m_s",
-            self.initial_velocity_m_s.unwrap_or([0.0; 3]),
-        )?;
+        let omega = vec3("trajectory.initial_omega_rad_s", self.initial_omega_rad_s.unwrap_or([0.0; 3]))?;
+        let velocity = vec3("trajectory.initial_velocity_m_s", self.initial_velocity_m_s.unwrap_or([0.0; 3]))?;
         let only_segments = |key: &str, given: bool| {
             if given && self.kind != TrajectoryKind::Segments {
-                Err(Bad::new(
-                    format!("trajectory.{key}"),
-                    "applies to kind = \"segments\" only",
-                ))
+                Err(Bad::new(format!("trajectory.{key}"), "applies to kind = \"segments\" only"))
             } else {
                 Ok(())
             }
@@ -157,17 +136,10 @@ impl TrajectorySection {
                 if horizon_s > total_s * (1.0 + 1e-12) {
                     return Err(Bad::new(
                         "navigation.horizons_s",
-                        format!(
-                            "the last horizon ({horizon_s} s) is past the end of the segments ({total_s} s)"
-                        ),
+                        format!("the last horizon ({horizon_s} s) is past the end of the segments ({total_s} s)"),
                     ));
                 }
-                let initial = InitialState {
-                    q_b_i,
-                    omega_b_rad_s: omega,
-                    v_i_m_s: velocity,
-                    r_i_m: Vector3::zeros(),
-                };
+                let initial = InitialState { q_b_i, omega_b_rad_s: omega, v_i_m_s: velocity, r_i_m: Vector3::zeros() };
                 Ok(Trajectory::new(initial, &segments))
             }
         }

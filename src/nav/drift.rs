@@ -61,21 +61,10 @@ pub fn drift_study(
     let mut rows = Vec::new();
     for (name, params) in compensations {
         let mut compensator = crate::sensor::Compensator::new(array, params)?;
-        let mut source = crate::sensor::SimulatedArray::<rand_chacha::ChaCha8Rng>::new(
-            array, truth, trajectory, gravity_i,
-        );
-        for sample in super::navigate(
-            trajectory,
-            &mut source,
-            &mut compensator,
-            &gravity_i,
-            step_s,
-            horizons_s,
-        ) {
-            rows.push(DriftRow {
-                compensation: (*name).to_string(),
-                sample,
-            });
+        let mut source =
+            crate::sensor::SimulatedArray::<rand_chacha::ChaCha8Rng>::new(array, truth, trajectory, gravity_i);
+        for sample in super::navigate(trajectory, &mut source, &mut compensator, &gravity_i, step_s, horizons_s) {
+            rows.push(DriftRow { compensation: (*name).to_string(), sample });
         }
     }
     Ok(rows)

@@ -17,12 +17,7 @@ pub struct NavState {
 
 impl From<InitialState> for NavState {
     fn from(s: InitialState) -> Self {
-        Self {
-            q_b_i: s.q_b_i,
-            omega_b_rad_s: s.omega_b_rad_s,
-            v_i_m_s: s.v_i_m_s,
-            r_i_m: s.r_i_m,
-        }
+        Self { q_b_i: s.q_b_i, omega_b_rad_s: s.omega_b_rad_s, v_i_m_s: s.v_i_m_s, r_i_m: s.r_i_m }
     }
 }
 
@@ -37,12 +32,7 @@ struct Raw {
 
 impl Raw {
     fn axpy(&self, h: f64, d: &Raw) -> Raw {
-        Raw {
-            q: self.q + d.q * h,
-            w: self.w + d.w * h,
-            v: self.v + d.v * h,
-            r: self.r + d.r * h,
-        }
+        Raw { q: self.q + d.q * h, w: self.w + d.w * h, v: self.v + d.v * h, r: self.r + d.r * h }
     }
 }
 
@@ -55,7 +45,7 @@ pub trait OutputSource {
 }
 
 /// Navigates from the trajectory's initial state with fixed steps of `step_s` (shortened to land
-/// exactly on each horizon), compensating the outputs with `compensator`, and returns the drift
+/// exactly on each horizon and on each of the trajectory's breakpoints), compensating the outputs with `compensator`, and returns the drift
 /// at each horizon (sorted ascending).
 pub fn navigate(
     trajectory: &Trajectory,
@@ -70,19 +60,9 @@ pub fn navigate(
     let mut outputs = vec![0.0; n];
     let start = NavState::from({
         let t = trajectory.truth(0.0);
-        InitialState {
-            q_b_i: t.q_b_i,
-            omega_b_rad_s: t.omega_b_rad_s,
-            v_i_m_s: t.v_i_m_s,
-            r_i_m: t.r_i_m,
-        }
+        InitialState { q_b_i: t.q_b_i, omega_b_rad_s: t.omega_b_rad_s, v_i_m_s: t.v_i_m_s, r_i_m: t.r_i_m }
     });
-    let mut x = Raw {
-        q: *start.q_b_i.quaternion(),
-        w: start.omega_b_rad_s,
-        v: start.v_i_m_s,
-        r: start.r_i_m,
-    };
+    let mut x = Raw { q: *start.q_b_i.quaternion(), w: start.omega_b_rad_s, v: start.v_i_m_s, r: start.r_i_m };
     let mut t_s = 0.0;
     let mut drift = Vec::with_capacity(horizons_s.len());
     let mut deriv = |t: f64, x: &Raw, source: &mut dyn OutputSource, outputs: &mut [f64]| -> Raw {
@@ -97,9 +77,11 @@ pub fn navigate(
             r: x.v,
         }
     };
-    let mut sorted: Vec<f64> = horizons_s.to_vec();
-    sorted.sort_by(f64::total_cmp);
-    for &horizon in &sorted {
+    let mut stops: Vec<(f64, bool)> = horizons_s.iter().map(|&h| (h, true)).collect();
+    let last_s = horizons_s.iter().copied().fold(0.0, f64::max);
+    stops.extend(trajectory.breakpoints_s().into_iter().filter(|&b| b < last_s).map(|b| (b, false)));
+    stops.sort_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
+    for &(horizon, record) in &stops {
         loop {
             let remaining = horizon - t_s;
             if remaining <= 1e-9 * step_s {
@@ -107,11 +89,7 @@ pub fn navigate(
                 break;
             }
             // Take a full step unless the horizon falls within it (or just past it).
-            let h = if remaining < step_s * (1.0 + 1e-9) {
-                remaining
-            } else {
-                step_s
-            };
+            let h = if remaining < step_s * (1.0 + 1e-9) { remaining } else { step_s };
             source.begin_step(t_s, h);
             let k1 = deriv(t_s, &x, source, &mut outputs);
             let k2 = deriv(t_s + 0.5 * h, &x.axpy(0.5 * h, &k1), source, &mut outputs);
@@ -126,13 +104,11 @@ pub fn navigate(
             x.q = x.q.normalize();
             t_s = if h == step_s { t_s + h } else { horizon };
         }
-        let nav = NavState {
-            q_b_i: UnitQuaternion::new_normalize(x.q),
-            omega_b_rad_s: x.w,
-            v_i_m_s: x.v,
-            r_i_m: x.r,
-        };
-        drift.push(DriftSample::new(horizon, &nav, &trajectory.truth(horizon)));
+        if record {
+            let nav =
+                NavState { q_b_i: UnitQuaternion::new_normalize(x.q), omega_b_rad_s: x.w, v_i_m_s: x.v, r_i_m: x.r };
+            drift.push(DriftSample::new(horizon, &nav, &trajectory.truth(horizon)));
+        }
     }
     drift
 }

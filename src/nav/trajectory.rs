@@ -68,16 +68,9 @@ impl TruthState {
 #[derive(Debug, Clone)]
 enum Attitude {
     /// Rotation about a fixed unit axis by `w0 tau + a tau^2 / 2`.
-    FixedAxis {
-        axis: Vector3<f64>,
-        w0_rad_s: f64,
-        a_rad_s2: f64,
-    },
+    FixedAxis { axis: Vector3<f64>, w0_rad_s: f64, a_rad_s2: f64 },
     /// Magnus knots every `h_s` from the segment start.
-    Knots {
-        h_s: f64,
-        knots: Vec<UnitQuaternion<f64>>,
-    },
+    Knots { h_s: f64, knots: Vec<UnitQuaternion<f64>> },
 }
 
 #[derive(Debug, Clone)]
@@ -108,12 +101,7 @@ impl Trajectory {
         let mut t0_s = 0.0;
         for seg in segments {
             let attitude = attitude_model(&start, seg);
-            let piece = Piece {
-                t0_s,
-                segment: *seg,
-                start,
-                attitude,
-            };
+            let piece = Piece { t0_s, segment: *seg, start, attitude };
             let end = piece.state(seg.duration_s);
             start = InitialState {
                 q_b_i: end.q_b_i,
@@ -124,10 +112,7 @@ impl Trajectory {
             t0_s += seg.duration_s;
             pieces.push(piece);
         }
-        Self {
-            pieces,
-            duration_s: t0_s,
-        }
+        Self { pieces, duration_s: t0_s }
     }
 
     /// Hung & Lee (2006), Section 5: `r'' = (9.81, 0, 0)` m/s^2 (inertial), `omega' = (pi/4, 0, 0)`
@@ -146,15 +131,8 @@ impl Trajectory {
     /// At rest with the given attitude.
     pub fn rest(duration_s: f64, q_b_i: UnitQuaternion<f64>) -> Self {
         Self::new(
-            InitialState {
-                q_b_i,
-                ..InitialState::default()
-            },
-            &[Segment {
-                duration_s,
-                alpha_b_rad_s2: Vector3::zeros(),
-                accel_i_m_s2: Vector3::zeros(),
-            }],
+            InitialState { q_b_i, ..InitialState::default() },
+            &[Segment { duration_s, alpha_b_rad_s2: Vector3::zeros(), accel_i_m_s2: Vector3::zeros() }],
         )
     }
 
@@ -162,15 +140,23 @@ impl Trajectory {
         self.duration_s
     }
 
-    /// The true state at `t_s` (clamped at 0).
+    /// The true state at `t_s` (clamped at 0). At a boundary between segments, the later one.
     pub fn truth(&self, t_s: f64) -> TruthState {
-        let t_s = t_s.max(0.0);
-        let k = self
-            .pieces
-            .partition_point(|p| p.t0_s <= t_s)
-            .saturating_sub(1);
+        self.truth_in_segment_of(t_s, t_s)
+    }
+
+    /// The true state at `t_s` by the formulas of the segment that holds `reference_s`: an
+    /// integration step evaluates all its stages in the segment of its midpoint, so that the
+    /// accelerations' jumps at boundaries fall between steps, not inside them.
+    pub fn truth_in_segment_of(&self, t_s: f64, reference_s: f64) -> TruthState {
+        let k = self.pieces.partition_point(|p| p.t0_s <= reference_s.max(0.0)).saturating_sub(1);
         let piece = &self.pieces[k];
-        piece.state(t_s - piece.t0_s)
+        piece.state(t_s.max(0.0) - piece.t0_s)
+    }
+
+    /// Times where the accelerations may jump (the starts of segments after the first), s.
+    pub fn breakpoints_s(&self) -> Vec<f64> {
+        self.pieces.iter().skip(1).map(|p| p.t0_s).collect()
     }
 }
 
@@ -180,24 +166,14 @@ impl Piece {
         let seg = &self.segment;
         let omega = s.omega_b_rad_s + seg.alpha_b_rad_s2 * tau_s;
         let q_b_i = match &self.attitude {
-            Attitude::FixedAxis {
-                axis,
-                w0_rad_s,
-                a_rad_s2,
-            } => {
+            Attitude::FixedAxis { axis, w0_rad_s, a_rad_s2 } => {
                 let angle = w0_rad_s * tau_s + 0.5 * a_rad_s2 * tau_s * tau_s;
                 s.q_b_i * UnitQuaternion::from_scaled_axis(axis * angle)
             }
             Attitude::Knots { h_s, knots } => {
                 let k = ((tau_s / h_s).floor() as usize).min(knots.len() - 1);
                 let tk = k as f64 * h_s;
-                magnus_step(
-                    &knots[k],
-                    &s.omega_b_rad_s,
-                    &seg.alpha_b_rad_s2,
-                    tk,
-                    tau_s - tk,
-                )
+                magnus_step(&knots[k], &s.omega_b_rad_s, &seg.alpha_b_rad_s2, tk, tau_s - tk)
             }
         };
         TruthState {
@@ -223,11 +199,7 @@ fn attitude_model(start: &InitialState, seg: &Segment) -> Attitude {
         } else {
             Vector3::x()
         };
-        return Attitude::FixedAxis {
-            axis,
-            w0_rad_s: w0.dot(&axis),
-            a_rad_s2: a.dot(&axis),
-        };
+        return Attitude::FixedAxis { axis, w0_rad_s: w0.dot(&axis), a_rad_s2: a.dot(&axis) };
     }
     let count = (seg.duration_s / KNOT_SPACING_S).ceil().max(1.0) as usize;
     let h_s = seg.duration_s / count as f64;

@@ -54,16 +54,10 @@ pub enum Misalignment {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum MisalignmentError {
-    #[error(
-        "the triad form needs every accelerometer in a triad; accelerometer {index} is in none"
-    )]
+    #[error("the triad form needs every accelerometer in a triad; accelerometer {index} is in none")]
     NotInTriad { index: usize },
     #[error("expected {expected} {what}, got {got}")]
-    Count {
-        what: &'static str,
-        expected: usize,
-        got: usize,
-    },
+    Count { what: &'static str, expected: usize, got: usize },
     #[error("accelerometer {index}: the axis {problem}")]
     Axis { index: usize, problem: &'static str },
 }
@@ -77,17 +71,11 @@ impl Misalignment {
             Misalignment::Triad(angles) => {
                 let expected = array.triads().len();
                 if angles.len() != expected {
-                    return Err(MisalignmentError::Count {
-                        what: "triads of angles",
-                        expected,
-                        got: angles.len(),
-                    });
+                    return Err(MisalignmentError::Count { what: "triads of angles", expected, got: angles.len() });
                 }
                 (0..n)
                     .map(|j| {
-                        let (t, row) = array
-                            .triad_of(j)
-                            .ok_or(MisalignmentError::NotInTriad { index: j + 1 })?;
+                        let (t, row) = array.triad_of(j).ok_or(MisalignmentError::NotInTriad { index: j + 1 })?;
                         let tr = array.triads()[t];
                         let th = |k: usize| array.accelerometers()[tr[k]].axis;
                         let c = triad_row(&angles[t], row);
@@ -97,18 +85,9 @@ impl Misalignment {
             }
             Misalignment::Tilt(tilts) => {
                 if tilts.len() != n {
-                    return Err(MisalignmentError::Count {
-                        what: "tilt pairs",
-                        expected: n,
-                        got: tilts.len(),
-                    });
+                    return Err(MisalignmentError::Count { what: "tilt pairs", expected: n, got: tilts.len() });
                 }
-                Ok(array
-                    .accelerometers()
-                    .iter()
-                    .zip(tilts)
-                    .map(|(a, t)| tilt_axis(&a.axis, t))
-                    .collect())
+                Ok(array.accelerometers().iter().zip(tilts).map(|(a, t)| tilt_axis(&a.axis, t)).collect())
             }
         }
     }
@@ -125,9 +104,7 @@ fn triad_row(a: &TriadAngles, row: usize) -> [f64; 3] {
 
 /// Orthonormal pair `(u, w)` orthogonal to the unit axis `theta` that defines the tilt angles.
 pub fn tilt_basis(theta: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
-    let k = (0..3)
-        .min_by(|&a, &b| theta[a].abs().total_cmp(&theta[b].abs()))
-        .unwrap_or(0);
+    let k = (0..3).min_by(|&a, &b| theta[a].abs().total_cmp(&theta[b].abs())).unwrap_or(0);
     let e = Vector3::ith(k, 1.0);
     let u = (e - theta * theta.dot(&e)).normalize();
     (u, theta.cross(&u))
@@ -169,21 +146,12 @@ pub fn rescale_axis(s: &SensorParams, lambda: f64) -> SensorParams {
 
 /// The same sensors with unit axes (tilt form): scale factor and bias absorb the axis length.
 pub fn to_unit_axes(params: &ArrayParams) -> ArrayParams {
-    ArrayParams {
-        sensors: params
-            .sensors
-            .iter()
-            .map(|s| rescale_axis(s, 1.0 / s.axis.norm()))
-            .collect(),
-    }
+    ArrayParams { sensors: params.sensors.iter().map(|s| rescale_axis(s, 1.0 / s.axis.norm())).collect() }
 }
 
 /// The same sensors with triad-form axes (coefficient 1 on the accelerometer's own nominal axis),
 /// scale factor and bias compensating.
-pub fn to_triad_axes(
-    array: &Array,
-    params: &ArrayParams,
-) -> Result<ArrayParams, MisalignmentError> {
+pub fn to_triad_axes(array: &Array, params: &ArrayParams) -> Result<ArrayParams, MisalignmentError> {
     let sensors = params
         .sensors
         .iter()
@@ -204,17 +172,12 @@ pub fn to_triad_axes(
 }
 
 /// The paper's angles of every triad read from parameters in triad form (see [`to_triad_axes`]).
-pub fn triad_angles(
-    array: &Array,
-    params: &ArrayParams,
-) -> Result<Vec<TriadAngles>, MisalignmentError> {
+pub fn triad_angles(array: &Array, params: &ArrayParams) -> Result<Vec<TriadAngles>, MisalignmentError> {
     let triad_params = to_triad_axes(array, params)?;
     let mut out = vec![TriadAngles::default(); array.triads().len()];
     for (j, s) in triad_params.sensors.iter().enumerate() {
         let (c, row) = triad_coefficients(array, j, &s.axis)?;
-        let (t, _) = array
-            .triad_of(j)
-            .ok_or(MisalignmentError::NotInTriad { index: j + 1 })?;
+        let (t, _) = array.triad_of(j).ok_or(MisalignmentError::NotInTriad { index: j + 1 })?;
         let a = &mut out[t];
         match row {
             0 => (a.xz_rad, a.xy_rad) = (c[1], -c[2]),
@@ -227,29 +190,18 @@ pub fn triad_angles(
 
 /// Tilt angles of every accelerometer (rad).
 pub fn tilt_angles_all(array: &Array, params: &ArrayParams) -> Vec<[f64; 2]> {
-    array
-        .accelerometers()
-        .iter()
-        .zip(&params.sensors)
-        .map(|(a, s)| tilt_angles(&a.axis, &s.axis))
-        .collect()
+    array.accelerometers().iter().zip(&params.sensors).map(|(a, s)| tilt_angles(&a.axis, &s.axis)).collect()
 }
 
 /// Coefficients of `axis` on its triad's nominal axes, and the accelerometer's row in the triad.
-fn triad_coefficients(
-    array: &Array,
-    j: usize,
-    axis: &Vector3<f64>,
-) -> Result<([f64; 3], usize), MisalignmentError> {
-    let (t, row) = array
-        .triad_of(j)
-        .ok_or(MisalignmentError::NotInTriad { index: j + 1 })?;
+fn triad_coefficients(array: &Array, j: usize, axis: &Vector3<f64>) -> Result<([f64; 3], usize), MisalignmentError> {
+    let (t, row) = array.triad_of(j).ok_or(MisalignmentError::NotInTriad { index: j + 1 })?;
     let tr = array.triads()[t];
     let th = |k: usize| array.accelerometers()[tr[k]].axis;
     let basis = Matrix3::from_columns(&[th(0), th(1), th(2)]);
-    let c = basis.lu().solve(axis).ok_or(MisalignmentError::Axis {
-        index: j + 1,
-        problem: "cannot be expressed in its triad",
-    })?;
+    let c = basis
+        .lu()
+        .solve(axis)
+        .ok_or(MisalignmentError::Axis { index: j + 1, problem: "cannot be expressed in its triad" })?;
     Ok(([c[0], c[1], c[2]], row))
 }

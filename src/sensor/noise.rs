@@ -22,10 +22,7 @@ pub enum WhiteNoise {
     /// Density, m/s^2/sqrt(Hz).
     Density { density_m_s2_per_sqrt_hz: f64 },
     /// Per-sample standard deviation at a sample rate.
-    Sigma {
-        sigma_m_s2: f64,
-        sample_rate_hz: f64,
-    },
+    Sigma { sigma_m_s2: f64, sample_rate_hz: f64 },
 }
 
 impl WhiteNoise {
@@ -33,13 +30,8 @@ impl WhiteNoise {
     pub fn density_m_s2_per_sqrt_hz(&self) -> f64 {
         match *self {
             WhiteNoise::None => 0.0,
-            WhiteNoise::Density {
-                density_m_s2_per_sqrt_hz,
-            } => density_m_s2_per_sqrt_hz,
-            WhiteNoise::Sigma {
-                sigma_m_s2,
-                sample_rate_hz,
-            } => sigma_m_s2 / sample_rate_hz.sqrt(),
+            WhiteNoise::Density { density_m_s2_per_sqrt_hz } => density_m_s2_per_sqrt_hz,
+            WhiteNoise::Sigma { sigma_m_s2, sample_rate_hz } => sigma_m_s2 / sample_rate_hz.sqrt(),
         }
     }
     /// Per-sample standard deviation at `sample_rate_hz`, m/s^2.
@@ -92,25 +84,14 @@ pub struct NoiseGenerator {
 impl NoiseGenerator {
     /// A generator for `n` accelerometers sampled at `sample_rate_hz`. Gauss-Markov states start
     /// from their stationary distribution, random walks from zero.
-    pub fn new<R: Rng + ?Sized>(
-        spec: &NoiseSpec,
-        n: usize,
-        sample_rate_hz: f64,
-        rng: &mut R,
-    ) -> Self {
+    pub fn new<R: Rng + ?Sized>(spec: &NoiseSpec, n: usize, sample_rate_hz: f64, rng: &mut R) -> Self {
         let dt_s = 1.0 / sample_rate_hz;
         let (gm_phi, gm_sigma) = match spec.gauss_markov {
             Some(g) if g.sigma_m_s2 > 0.0 => ((-dt_s / g.correlation_time_s).exp(), g.sigma_m_s2),
             _ => (0.0, 0.0),
         };
         let gm_m_s2 = (0..n)
-            .map(|_| {
-                if gm_sigma > 0.0 {
-                    gm_sigma * rng.sample::<f64, _>(StandardNormal)
-                } else {
-                    0.0
-                }
-            })
+            .map(|_| if gm_sigma > 0.0 { gm_sigma * rng.sample::<f64, _>(StandardNormal) } else { 0.0 })
             .collect();
         Self {
             white_sigma_m_s2: spec.white.sigma_m_s2(sample_rate_hz),
@@ -132,8 +113,7 @@ impl NoiseGenerator {
         }
         if self.gm_drive_m_s2 > 0.0 {
             n += self.gm_m_s2[j];
-            self.gm_m_s2[j] = self.gm_phi * self.gm_m_s2[j]
-                + self.gm_drive_m_s2 * rng.sample::<f64, _>(StandardNormal);
+            self.gm_m_s2[j] = self.gm_phi * self.gm_m_s2[j] + self.gm_drive_m_s2 * rng.sample::<f64, _>(StandardNormal);
         }
         if self.rw_step_m_s2 > 0.0 {
             n += self.rw_m_s2[j];
@@ -143,12 +123,7 @@ impl NoiseGenerator {
     }
 
     /// Adds one sample of noise to noise-free outputs (output units) and quantizes them.
-    pub fn apply<R: Rng + ?Sized>(
-        &mut self,
-        rng: &mut R,
-        params: &ArrayParams,
-        outputs: &mut [f64],
-    ) {
+    pub fn apply<R: Rng + ?Sized>(&mut self, rng: &mut R, params: &ArrayParams, outputs: &mut [f64]) {
         for (j, (o, s)) in outputs.iter_mut().zip(&params.sensors).enumerate() {
             *o += s.scale_factor * self.next_m_s2(rng, j);
             *o = quantize(*o, s.scale_factor.abs() * self.quantization_m_s2);
@@ -158,9 +133,5 @@ impl NoiseGenerator {
 
 /// Rounds `value` to the nearest multiple of `step` (no-op for a zero step).
 pub fn quantize(value: f64, step: f64) -> f64 {
-    if step > 0.0 {
-        (value / step).round() * step
-    } else {
-        value
-    }
+    if step > 0.0 { (value / step).round() * step } else { value }
 }

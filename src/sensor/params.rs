@@ -57,22 +57,13 @@ impl ArrayParams {
 
     /// True (or estimated) positions `r_j + dr_j`, m.
     pub fn positions_m(&self, array: &Array) -> Vec<Vector3<f64>> {
-        array
-            .accelerometers()
-            .iter()
-            .zip(&self.sensors)
-            .map(|(a, s)| a.position_m + s.location_error_m)
-            .collect()
+        array.accelerometers().iter().zip(&self.sensors).map(|(a, s)| a.position_m + s.location_error_m).collect()
     }
 
     /// Noise-free outputs for a motion, in output units: `k_j (b_j + theta'_j . f(r_j + dr_j))`.
     pub fn outputs(&self, array: &Array, motion: &RigidMotion, out: &mut [f64]) {
         debug_assert_eq!(out.len(), self.len());
-        for ((o, s), a) in out
-            .iter_mut()
-            .zip(&self.sensors)
-            .zip(array.accelerometers())
-        {
+        for ((o, s), a) in out.iter_mut().zip(&self.sensors).zip(array.accelerometers()) {
             let f = motion.specific_force_m_s2(&(a.position_m + s.location_error_m));
             *o = s.scale_factor * (s.bias_m_s2 + s.axis.dot(&f));
         }
@@ -95,11 +86,7 @@ impl Compensator {
         let axes: Vec<_> = params.sensors.iter().map(|s| s.axis).collect();
         let mechanization = Mechanization::new(&params.positions_m(array), &axes)?;
         Ok(Self {
-            inv_scale: params
-                .sensors
-                .iter()
-                .map(|s| 1.0 / s.scale_factor)
-                .collect(),
+            inv_scale: params.sensors.iter().map(|s| 1.0 / s.scale_factor).collect(),
             bias_m_s2: params.sensors.iter().map(|s| s.bias_m_s2).collect(),
             mechanization,
             readings: vec![0.0; params.len()],
@@ -113,17 +100,10 @@ impl Compensator {
         omega_b_rad_s: &Vector3<f64>,
         gravity_b_m_s2: &Vector3<f64>,
     ) -> RigidAccel {
-        for (((m, s), k), b) in self
-            .readings
-            .iter_mut()
-            .zip(outputs)
-            .zip(&self.inv_scale)
-            .zip(&self.bias_m_s2)
-        {
+        for (((m, s), k), b) in self.readings.iter_mut().zip(outputs).zip(&self.inv_scale).zip(&self.bias_m_s2) {
             *m = s * k - b;
         }
-        self.mechanization
-            .solve(&self.readings, omega_b_rad_s, gravity_b_m_s2)
+        self.mechanization.solve(&self.readings, omega_b_rad_s, gravity_b_m_s2)
     }
 
     pub fn mechanization(&self) -> &Mechanization {

@@ -19,6 +19,7 @@ pub struct SimulatedArray<'a, R: Rng> {
     gravity_i_m_s2: Vector3<f64>,
     noise: Option<(NoiseGenerator, R, f64)>,
     step_noise_m_s2: Vec<f64>,
+    step_mid_s: f64,
 }
 
 impl<'a, R: Rng> SimulatedArray<'a, R> {
@@ -35,6 +36,7 @@ impl<'a, R: Rng> SimulatedArray<'a, R> {
             gravity_i_m_s2,
             noise: None,
             step_noise_m_s2: vec![0.0; array.len()],
+            step_mid_s: 0.0,
         }
     }
 
@@ -46,7 +48,8 @@ impl<'a, R: Rng> SimulatedArray<'a, R> {
 }
 
 impl<R: Rng> OutputSource for SimulatedArray<'_, R> {
-    fn begin_step(&mut self, _t_s: f64, _h_s: f64) {
+    fn begin_step(&mut self, t_s: f64, h_s: f64) {
+        self.step_mid_s = t_s + 0.5 * h_s;
         if let Some((generator, rng, _)) = &mut self.noise {
             for (j, n) in self.step_noise_m_s2.iter_mut().enumerate() {
                 *n = generator.next_m_s2(rng, j);
@@ -55,14 +58,10 @@ impl<R: Rng> OutputSource for SimulatedArray<'_, R> {
     }
 
     fn outputs(&mut self, t_s: f64, out: &mut [f64]) {
-        let motion = self.trajectory.truth(t_s).motion(&self.gravity_i_m_s2);
+        let motion = self.trajectory.truth_in_segment_of(t_s, self.step_mid_s).motion(&self.gravity_i_m_s2);
         self.truth.outputs(self.array, &motion, out);
         if let Some((_, _, q_m_s2)) = &self.noise {
-            for ((o, s), n) in out
-                .iter_mut()
-                .zip(&self.truth.sensors)
-                .zip(&self.step_noise_m_s2)
-            {
+            for ((o, s), n) in out.iter_mut().zip(&self.truth.sensors).zip(&self.step_noise_m_s2) {
                 *o = quantize(*o + s.scale_factor * n, s.scale_factor.abs() * q_m_s2);
             }
         }

@@ -1,0 +1,8 @@
+//! Integration tests of gfcal, one module per domain.
+
+mod common;
+mod mechanization;
+mod misalignment;
+mod navigation;
+mod noise;
+mod reference;
