@@ -9,7 +9,7 @@ use clap::{Parser, Subcommand};
 
 use gfcal::config::ConfigError;
 use gfcal::config::drift::DriftConfig;
-use gfcal::nav::{DriftRow, drift_study};
+use gfcal::nav::{DriftRow, DriftSetup, drift_study};
 
 #[derive(Parser)]
 #[command(
@@ -66,16 +66,17 @@ fn run(cli: Cli) -> anyhow::Result<()> {
 fn drift(config_path: &std::path::Path, csv: Option<&std::path::Path>) -> anyhow::Result<()> {
     let cfg = DriftConfig::load(config_path).map_err(InputError)?;
     let nav = &cfg.navigation;
-    let rows = drift_study(
-        &cfg.array,
-        &cfg.errors.truth,
-        &[("nominal", &cfg.errors.nominal), ("true", &cfg.errors.truth)],
-        &cfg.trajectory,
-        nav.gravity_m_s2,
-        nav.step_s,
-        &nav.horizons_s,
-    )
-    .map_err(|e| {
+    let setup = DriftSetup {
+        array: &cfg.array,
+        truth: &cfg.errors.truth,
+        trajectory: &cfg.trajectory,
+        noise: cfg.noise,
+        noise_seed: cfg.noise_seed,
+        gravity_m_s2: nav.gravity_m_s2,
+        step_s: nav.step_s,
+    };
+    let compensations = [("nominal", &cfg.errors.nominal), ("true", &cfg.errors.truth)];
+    let rows = drift_study(&setup, &compensations, &nav.horizons_s).map_err(|e| {
         InputError(ConfigError::Invalid {
             path: config_path.to_path_buf(),
             key: "errors".into(),

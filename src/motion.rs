@@ -60,3 +60,26 @@ impl RigidMotion {
         self.accel_b_m_s2 + self.alpha_b_rad_s2.cross(r_b_m) + w.cross(&w.cross(r_b_m)) - self.gravity_b_m_s2
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn at_rest_the_specific_force_is_g_up_everywhere() {
+        let up = Vector3::new(1.0, -2.0, 2.0);
+        let m = RigidMotion::at_rest(&up, 9.8);
+        for r in [Vector3::zeros(), Vector3::new(0.1, 0.2, -0.3)] {
+            let f = m.specific_force_m_s2(&r);
+            assert!((f - up / 3.0 * 9.8).norm() < 1e-14, "{f}");
+        }
+    }
+
+    #[test]
+    fn spinning_adds_the_centripetal_term_toward_the_axis() {
+        // Spin about z at 2 rad/s: a point at x = 0.5 m feels -w^2 x = -2 m/s^2 along x.
+        let m = RigidMotion::spinning(&Vector3::new(0.0, 0.0, 2.0), &Vector3::z(), 9.8);
+        let f = m.specific_force_m_s2(&Vector3::new(0.5, 0.0, 0.0));
+        assert!((f - Vector3::new(-2.0, 0.0, 9.8)).norm() < 1e-14, "{f}");
+    }
+}

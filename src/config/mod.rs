@@ -4,6 +4,7 @@
 pub mod array;
 pub mod drift;
 pub mod errors;
+pub mod noise;
 pub mod trajectory;
 
 use std::path::{Path, PathBuf};
@@ -63,11 +64,26 @@ pub(crate) fn vec3(key: &str, v: [f64; 3]) -> Result<nalgebra::Vector3<f64>, Bad
 }
 
 /// One value for every accelerometer, or one value each.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
-#[serde(untagged)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum OneOrEach<T> {
     One(T),
     Each(Vec<T>),
+}
+
+impl<'de, T: DeserializeOwned> serde::Deserialize<'de> for OneOrEach<T> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        // A single value is tried first: a single [x, y, z] is one value, not a list of three.
+        let value = toml::Value::deserialize(d)?;
+        if let Ok(one) = value.clone().try_into::<T>() {
+            return Ok(OneOrEach::One(one));
+        }
+        value.try_into::<Vec<T>>().map(OneOrEach::Each).map_err(|e| {
+            serde::de::Error::custom(format!(
+                "expected one value for every accelerometer or a list with one value each ({})",
+                e.to_string().trim()
+            ))
+        })
+    }
 }
 
 impl<T: Clone> OneOrEach<T> {

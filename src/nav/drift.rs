@@ -46,26 +46,40 @@ pub struct DriftRow {
     pub sample: DriftSample,
 }
 
-/// Navigates the noise-free outputs of an array with true parameters `truth` along `trajectory`,
-/// once per compensation, and returns the drift at every horizon.
+/// What the compared navigations share: the array and its true parameters, the trajectory, and
+/// the noise (one realisation from `noise_seed`, the same for every compensation).
+pub struct DriftSetup<'a> {
+    pub array: &'a crate::array::Array,
+    pub truth: &'a crate::sensor::ArrayParams,
+    pub trajectory: &'a super::Trajectory,
+    pub noise: crate::sensor::NoiseSpec,
+    pub noise_seed: u64,
+    pub gravity_m_s2: f64,
+    pub step_s: f64,
+}
+
+/// Navigates the outputs of an array with true parameters along a trajectory, once per
+/// compensation, and returns the drift at every horizon.
 pub fn drift_study(
-    array: &crate::array::Array,
-    truth: &crate::sensor::ArrayParams,
+    setup: &DriftSetup<'_>,
     compensations: &[(&str, &crate::sensor::ArrayParams)],
-    trajectory: &super::Trajectory,
-    gravity_m_s2: f64,
-    step_s: f64,
     horizons_s: &[f64],
 ) -> Result<Vec<DriftRow>, crate::array::RankError> {
-    let gravity_i = nalgebra::Vector3::new(0.0, 0.0, -gravity_m_s2);
+    use rand::SeedableRng;
+    let gravity_i = nalgebra::Vector3::new(0.0, 0.0, -setup.gravity_m_s2);
     let mut rows = Vec::new();
     for (name, params) in compensations {
-        let mut compensator = crate::sensor::Compensator::new(array, params)?;
-        let mut source =
-            crate::sensor::SimulatedArray::<rand_chacha::ChaCha8Rng>::new(array, truth, trajectory, gravity_i);
-        for sample in super::navigate(trajectory, &mut source, &mut compensator, &gravity_i, step_s, horizons_s) {
-            rows.push(DriftRow { compensation: (*name).to_string(), sample });
+        let mut compensator = crate::sensor::Compensator::new(setup.array, params)?;
+        let mut source = crate::sensor::SimulatedArray::new(setup.array, setup.truth, setup.trajectory, gravity_i);
+        if !setup.noise.is_zero() {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(setup.noise_seed);
+            let generator =
+                crate::sensor::NoiseGenerator::new(&setup.noise, setup.array.len(), 1.0 / setup.step_s, &mut rng);
+            source = source.with_noise(generator, rng, setup.noise.quantization_m_s2);
         }
+        let samples =
+            super::navigate(setup.trajectory, &mut source, &mut compensator, &gravity_i, setup.step_s, horizons_s);
+        rows.extend(samples.into_iter().map(|sample| DriftRow { compensation: (*name).to_string(), sample }));
     }
     Ok(rows)
 }

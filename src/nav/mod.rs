@@ -10,6 +10,6 @@ pub mod drift;
 pub mod navigator;
 pub mod trajectory;
 
-pub use drift::{DriftRow, DriftSample, drift_study};
+pub use drift::{DriftRow, DriftSample, DriftSetup, drift_study};
 pub use navigator::{NavState, navigate};
 pub use trajectory::{InitialState, Segment, Trajectory, TruthState};

@@ -1,5 +1,6 @@
 //! Integration tests of gfcal, one module per domain.
 
+mod cli;
 mod common;
 mod mechanization;
 mod misalignment;

@@ -3,7 +3,7 @@
 
 use gfcal::array::Array;
 use gfcal::nav::drift::attitude_error_rad;
-use gfcal::nav::{DriftSample, InitialState, Segment, Trajectory, drift_study, navigate};
+use gfcal::nav::{DriftSample, DriftSetup, InitialState, Segment, Trajectory, drift_study, navigate};
 use gfcal::sensor::noise::{NoiseGenerator, NoiseSpec, WhiteNoise};
 use gfcal::sensor::{ArrayParams, Compensator, SimulatedArray};
 use gfcal::units::{M_S2_PER_UG, STANDARD_GRAVITY_M_S2 as G};
@@ -13,11 +13,15 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::common::{reference, reference_truth};
 
+fn setup<'a>(array: &'a Array, truth: &'a ArrayParams, trajectory: &'a Trajectory, step_s: f64) -> DriftSetup<'a> {
+    DriftSetup { array, truth, trajectory, noise: NoiseSpec::default(), noise_seed: 0, gravity_m_s2: G, step_s }
+}
+
 fn paper_true_drift(step_s: f64) -> DriftSample {
     let cube = Array::cube(0.1).unwrap();
     let truth = reference_truth(&cube, &reference());
     let traj = Trajectory::paper_manoeuvre(10.0);
-    drift_study(&cube, &truth, &[("true", &truth)], &traj, G, step_s, &[10.0]).unwrap()[0].sample
+    drift_study(&setup(&cube, &truth, &traj, step_s), &[("true", &truth)], &[10.0]).unwrap()[0].sample
 }
 
 #[test]
@@ -69,7 +73,7 @@ fn one_microg_bias_grows_as_t_t2_t3_t4() {
     truth.sensors[0].bias_m_s2 = M_S2_PER_UG;
     let horizons = [1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 10.0, 15.0, 20.0, 30.0];
     let traj = Trajectory::rest(30.0, UnitQuaternion::identity());
-    let rows = drift_study(&cube, &truth, &[("nominal", &nominal)], &traj, G, 0.01, &horizons).unwrap();
+    let rows = drift_study(&setup(&cube, &truth, &traj, 0.01), &[("nominal", &nominal)], &horizons).unwrap();
     let get = |f: fn(&DriftSample) -> f64| rows.iter().map(|r| f(&r.sample)).collect::<Vec<_>>();
     for (name, ys, expected) in [
         ("rate", get(|d| d.rate_err_rad_s), 1.0),
@@ -111,7 +115,7 @@ fn magnus_truth_agrees_with_rk4_navigation_on_tumbling_segments() {
         },
     ];
     let traj = Trajectory::new(initial, &segments);
-    let rows = drift_study(&cube, &params, &[("true", &params)], &traj, G, 1e-3, &[1.0, 2.0, 3.5, 5.0]).unwrap();
+    let rows = drift_study(&setup(&cube, &params, &traj, 1e-3), &[("true", &params)], &[1.0, 2.0, 3.5, 5.0]).unwrap();
     assert_eq!(rows.len(), 4, "one row per horizon, none for the breakpoint");
     for r in &rows {
         let d = r.sample;

@@ -66,9 +66,8 @@ fn static_outputs_flip_sign_with_gravity_except_bias() {
     let truth = reference_truth(&cube, &r);
     let steps = r["steps"].as_array().unwrap();
     for pair in steps[..12].chunks(2) {
-        for j in 0..6 {
+        for (j, s) in truth.sensors.iter().enumerate() {
             let sum = f(&pair[0]["outputs"][j]) + f(&pair[1]["outputs"][j]);
-            let s = &truth.sensors[j];
             assert_relative_eq!(sum, 2.0 * s.scale_factor * s.bias_m_s2, max_relative = 1e-9);
         }
     }
