@@ -12,9 +12,11 @@
 //! `f(r) = a_o + alpha x r + omega x (omega x r) - g_b`.
 
 pub mod array;
+pub mod calib;
 pub mod config;
 pub mod io;
 pub mod motion;
 pub mod nav;
+pub mod rng;
 pub mod sensor;
 pub mod units;

@@ -32,12 +32,44 @@ enum Command {
         #[arg(long)]
         csv: Option<PathBuf>,
     },
+    /// Fisher information of a calibration schedule: Cramer-Rao sigma of every parameter and the
+    /// combinations the schedule cannot identify or identifies weakly.
+    Identify {
+        /// Calibration config (TOML), e.g. configs/hung_lee_2006_design.toml.
+        config: PathBuf,
+    },
+    /// Add steps to a schedule, greedily, until every Cramer-Rao sigma is below its target.
+    Design {
+        /// Calibration config (TOML), e.g. configs/hung_lee_2006_design.toml.
+        config: PathBuf,
+    },
+    /// Reproduce Hung & Lee (2006) Tables 8 and 9 (CSV and Markdown) into a folder.
+    Paper {
+        /// Output folder (created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        /// Monte Carlo trials per schedule.
+        #[arg(long, default_value_t = 1000)]
+        trials: usize,
+        /// Master seed of the Monte Carlo.
+        #[arg(long, default_value_t = 2006)]
+        seed: u64,
+        /// White noise density of every accelerometer, ug/sqrt(Hz).
+        #[arg(long, default_value_t = 50.0)]
+        noise_density_ug_per_sqrt_hz: f64,
+    },
 }
+
+mod commands;
 
 /// An error the user can fix by changing the input: exit code 2.
 #[derive(Debug, thiserror::Error)]
-#[error(transparent)]
-struct InputError(#[from] ConfigError);
+pub(crate) enum InputError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("{0}")]
+    Other(String),
+}
 
 const EXIT_FAILURE: u8 = 1;
 const EXIT_BAD_INPUT: u8 = 2;
@@ -60,11 +92,16 @@ fn main() -> ExitCode {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Drift { config, csv } => drift(&config, csv.as_deref()),
+        Command::Identify { config } => commands::identify(&config),
+        Command::Design { config } => commands::design(&config),
+        Command::Paper { out, trials, seed, noise_density_ug_per_sqrt_hz } => {
+            commands::paper(&out, trials, seed, noise_density_ug_per_sqrt_hz)
+        }
     }
 }
 
 fn drift(config_path: &std::path::Path, csv: Option<&std::path::Path>) -> anyhow::Result<()> {
-    let cfg = DriftConfig::load(config_path).map_err(InputError)?;
+    let cfg = DriftConfig::load(config_path).map_err(InputError::Config)?;
     let nav = &cfg.navigation;
     let setup = DriftSetup {
         array: &cfg.array,
@@ -77,7 +114,7 @@ fn drift(config_path: &std::path::Path, csv: Option<&std::path::Path>) -> anyhow
     };
     let compensations = [("nominal", &cfg.errors.nominal), ("true", &cfg.errors.truth)];
     let rows = drift_study(&setup, &compensations, &nav.horizons_s).map_err(|e| {
-        InputError(ConfigError::Invalid {
+        InputError::Config(ConfigError::Invalid {
             path: config_path.to_path_buf(),
             key: "errors".into(),
             problem: format!("the true parameters give {e}"),

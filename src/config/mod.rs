@@ -2,9 +2,11 @@
 //! values are checked and converted to SI once, here. Unknown keys are refused.
 
 pub mod array;
+pub mod calibration;
 pub mod drift;
 pub mod errors;
 pub mod noise;
+pub mod schedule;
 pub mod trajectory;
 
 use std::path::{Path, PathBuf};

@@ -104,6 +104,18 @@ impl NoiseGenerator {
         }
     }
 
+    /// The same generator, its bias-instability states kept, stepping at another sample rate.
+    pub fn resampled(mut self, spec: &NoiseSpec, sample_rate_hz: f64) -> Self {
+        let dt_s = 1.0 / sample_rate_hz;
+        if let Some(g) = spec.gauss_markov.filter(|g| g.sigma_m_s2 > 0.0) {
+            self.gm_phi = (-dt_s / g.correlation_time_s).exp();
+            self.gm_drive_m_s2 = g.sigma_m_s2 * (1.0 - self.gm_phi * self.gm_phi).sqrt();
+        }
+        self.white_sigma_m_s2 = spec.white.sigma_m_s2(sample_rate_hz);
+        self.rw_step_m_s2 = spec.random_walk_m_s2_per_sqrt_s * dt_s.sqrt();
+        self
+    }
+
     /// The input-referred noise of accelerometer `j` for the next sample (m/s^2), advancing its
     /// bias-instability states.
     pub fn next_m_s2<R: Rng + ?Sized>(&mut self, rng: &mut R, j: usize) -> f64 {

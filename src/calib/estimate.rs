@@ -1,0 +1,92 @@
+//! What an estimator returns, and the errors that stop one.
+
+use nalgebra::{DMatrix, DVector};
+
+use super::params::{Form, Layout};
+use super::schedule::ScheduleError;
+use crate::sensor::misalignment::MisalignmentError;
+use crate::sensor::params::ArrayParams;
+
+/// How a fit ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitStatus {
+    pub converged: bool,
+    /// Residual evaluations (Levenberg-Marquardt) or linear solves (the paper's procedure).
+    pub iterations: usize,
+    /// Final cost: half the sum of squared weighted residuals of the step means, (m/s^2)^2.
+    pub cost: f64,
+    /// Condition number of the Jacobian with columns scaled to unit norm.
+    pub condition_number: f64,
+    pub message: String,
+}
+
+/// Estimated parameters with their covariance.
+#[derive(Debug, Clone)]
+pub struct Estimate {
+    pub form: Form,
+    /// Parameter vector in `form` (see [`Layout`]).
+    pub x: DVector<f64>,
+    pub params: ArrayParams,
+    /// Covariance of `x` from the Jacobian and the residual variance, SI units.
+    pub covariance: DMatrix<f64>,
+    /// Per-sample residual standard deviation, input-referred, m/s^2.
+    pub residual_sigma_m_s2: f64,
+    pub status: FitStatus,
+}
+
+impl Estimate {
+    /// Standard deviation of each parameter, SI.
+    pub fn sigma(&self) -> DVector<f64> {
+        DVector::from_iterator(self.x.len(), (0..self.x.len()).map(|i| self.covariance[(i, i)].max(0.0).sqrt()))
+    }
+}
+
+/// Why an estimator could not answer.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum CalibError {
+    #[error("the schedule cannot identify {}: {}", if parameters.len() == 1 { "this parameter" } else { "these parameters" }, parameters.join(", "))]
+    Unidentifiable { parameters: Vec<String> },
+    #[error(transparent)]
+    Schedule(#[from] ScheduleError),
+    #[error(transparent)]
+    Misalignment(#[from] MisalignmentError),
+    #[error("the paper's procedure needs {what}")]
+    PaperProcedure { what: String },
+    #[error("measurements do not fit the schedule: {problem}")]
+    Measurements { problem: String },
+}
+
+/// Condition number of `j` after scaling its columns to unit norm (infinite when a column or a
+/// direction is zero).
+pub fn scaled_condition_number(j: &DMatrix<f64>) -> f64 {
+    let mut js = j.clone();
+    for mut c in js.column_iter_mut() {
+        let n = c.norm();
+        if n > 0.0 {
+            c /= n;
+        }
+    }
+    let sv = js.singular_values();
+    let (max, min) = (sv.max(), sv.min());
+    if min > 0.0 { max / min } else { f64::INFINITY }
+}
+
+/// Checks that measurements have one entry per step and per accelerometer.
+pub fn check_shape(layout: &Layout, steps: usize, m: &super::Measurements) -> Result<(), CalibError> {
+    let n = layout.array().len();
+    if m.steps.len() != steps {
+        return Err(CalibError::Measurements {
+            problem: format!("{} steps measured, schedule has {steps}", m.steps.len()),
+        });
+    }
+    if let Some((i, s)) = m.steps.iter().enumerate().find(|(_, s)| s.mean.len() != n || s.within_ss.len() != n) {
+        return Err(CalibError::Measurements {
+            problem: format!("step {} has {} outputs, the array has {n}", i + 1, s.mean.len()),
+        });
+    }
+    if let Some(i) = m.steps.iter().position(|s| s.mean.iter().chain(&s.within_ss).any(|v| !v.is_finite())) {
+        return Err(CalibError::Measurements { problem: format!("step {} has a non-finite value", i + 1) });
+    }
+    Ok(())
+}

@@ -1,0 +1,216 @@
+//! The config of `gfcal identify` and `gfcal design`: an array, the true errors (the point where
+//! identifiability is evaluated), white noise, a schedule, the estimator's form and the targets.
+//!
+//! ```toml
+//! [calibration]
+//! form = "triad"            # or "tilt"
+//! estimator = "joint"       # or "paper"
+//! start = "linear"          # joint only: or "nominal"
+//! gravity_m_s2 = 9.80665
+//!
+//! [targets]                 # Cramer-Rao sigmas a schedule should reach
+//! scale_factor_ppm = 100.0
+//! bias_ug = 50.0
+//! misalignment_deg = 0.01
+//! location_mm = 0.1
+//!
+//! [design]                  # gfcal design: the candidate pool and a limit
+//! spin_rates_rad_s = [3.14159, 6.28319, 12.56637]
+//! max_added_steps = 12
+//! ```
+
+use std::path::Path;
+
+use serde::Deserialize;
+
+use super::array::ArraySection;
+use super::errors::{ErrorSet, ErrorsSection};
+use super::noise::NoiseSection;
+use super::schedule::ScheduleSection;
+use super::{Bad, ConfigError, positive, read_toml};
+use crate::array::Array;
+use crate::calib::Form;
+use crate::calib::fisher::Targets;
+use crate::calib::joint::Start;
+use crate::calib::schedule::Schedule;
+use crate::sensor::noise::NoiseSpec;
+use crate::units::STANDARD_GRAVITY_M_S2;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum FormEntry {
+    #[default]
+    Triad,
+    Tilt,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Estimator {
+    #[default]
+    Joint,
+    Paper,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum StartEntry {
+    Nominal,
+    #[default]
+    Linear,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationSection {
+    #[serde(default)]
+    pub form: FormEntry,
+    #[serde(default)]
+    pub estimator: Estimator,
+    #[serde(default)]
+    pub start: StartEntry,
+    pub gravity_m_s2: Option<f64>,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetsSection {
+    pub scale_factor_ppm: Option<f64>,
+    pub bias_ug: Option<f64>,
+    pub misalignment_deg: Option<f64>,
+    pub location_mm: Option<f64>,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DesignSection {
+    pub spin_rates_rad_s: Option<Vec<f64>>,
+    pub max_added_steps: Option<usize>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationFile {
+    #[serde(default)]
+    pub array: ArraySection,
+    #[serde(default)]
+    pub errors: ErrorsSection,
+    #[serde(default)]
+    pub noise: NoiseSection,
+    pub schedule: ScheduleSection,
+    #[serde(default)]
+    pub calibration: CalibrationSection,
+    #[serde(default)]
+    pub targets: TargetsSection,
+    #[serde(default)]
+    pub design: DesignSection,
+}
+
+/// Calibration settings in SI.
+#[derive(Debug, Clone)]
+pub struct CalibrationSettings {
+    pub form: Form,
+    pub estimator: Estimator,
+    pub start: Start,
+    pub gravity_m_s2: f64,
+}
+
+/// Design settings.
+#[derive(Debug, Clone)]
+pub struct DesignSettings {
+    pub spin_rates_rad_s: Vec<f64>,
+    pub max_added_steps: usize,
+}
+
+/// A checked calibration config.
+#[derive(Debug, Clone)]
+pub struct CalibrationConfig {
+    pub array: Array,
+    pub errors: ErrorSet,
+    pub noise: NoiseSpec,
+    pub noise_seed: u64,
+    pub schedule: Schedule,
+    pub calibration: CalibrationSettings,
+    pub targets: Targets,
+    pub design: DesignSettings,
+    pub text: String,
+}
+
+impl CalibrationSection {
+    pub fn resolve(&self) -> Result<CalibrationSettings, Bad> {
+        Ok(CalibrationSettings {
+            form: match self.form {
+                FormEntry::Triad => Form::Triad,
+                FormEntry::Tilt => Form::Tilt,
+            },
+            estimator: self.estimator,
+            start: match self.start {
+                StartEntry::Nominal => Start::Nominal,
+                StartEntry::Linear => Start::Linear,
+            },
+            gravity_m_s2: positive("calibration.gravity_m_s2", self.gravity_m_s2.unwrap_or(STANDARD_GRAVITY_M_S2))?,
+        })
+    }
+}
+
+impl TargetsSection {
+    pub fn resolve(&self) -> Result<Targets, Bad> {
+        let d = Targets::default();
+        Ok(Targets {
+            scale_factor_ppm: positive(
+                "targets.scale_factor_ppm",
+                self.scale_factor_ppm.unwrap_or(d.scale_factor_ppm),
+            )?,
+            bias_ug: positive("targets.bias_ug", self.bias_ug.unwrap_or(d.bias_ug))?,
+            misalignment_deg: positive(
+                "targets.misalignment_deg",
+                self.misalignment_deg.unwrap_or(d.misalignment_deg),
+            )?,
+            location_mm: positive("targets.location_mm", self.location_mm.unwrap_or(d.location_mm))?,
+        })
+    }
+}
+
+impl DesignSection {
+    pub fn resolve(&self) -> Result<DesignSettings, Bad> {
+        let pi = std::f64::consts::PI;
+        let rates = self.spin_rates_rad_s.clone().unwrap_or_else(|| vec![pi, 2.0 * pi, 4.0 * pi]);
+        if rates.is_empty() {
+            return Err(Bad::new("design.spin_rates_rad_s", "needs at least one rate"));
+        }
+        for (i, r) in rates.iter().enumerate() {
+            positive(&format!("design.spin_rates_rad_s[{i}]"), *r)?;
+        }
+        let max = self.max_added_steps.unwrap_or(12);
+        if max == 0 {
+            return Err(Bad::new("design.max_added_steps", "must be at least 1"));
+        }
+        Ok(DesignSettings { spin_rates_rad_s: rates, max_added_steps: max })
+    }
+}
+
+impl CalibrationConfig {
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let (file, text): (CalibrationFile, _) = read_toml(path)?;
+        let array = file.array.build(path)?;
+        let in_file = |b: Bad| b.in_file(path);
+        let errors = file.errors.resolve(&array).map_err(in_file)?;
+        let (noise, noise_seed) = file.noise.resolve().map_err(in_file)?;
+        let schedule = file.schedule.build(&array).map_err(in_file)?;
+        let calibration = file.calibration.resolve().map_err(in_file)?;
+        if calibration.form == Form::Triad && array.triads().is_empty() {
+            return Err(
+                Bad::new("calibration.form", "the triad form needs an array with triads; use \"tilt\"").in_file(path)
+            );
+        }
+        let targets = file.targets.resolve().map_err(in_file)?;
+        let design = file.design.resolve().map_err(in_file)?;
+        Ok(Self { array, errors, noise, noise_seed, schedule, calibration, targets, design, text })
+    }
+
+    /// Per-sample white-noise sigma at the schedule's first sample rate (input-referred, m/s^2).
+    pub fn white_sigma_m_s2(&self) -> f64 {
+        let rate = self.schedule.steps().first().map(|s| s.sample_rate_hz).unwrap_or(1.0);
+        self.noise.white.sigma_m_s2(rate)
+    }
+}
