@@ -133,33 +133,46 @@ pub fn analyse(layout: &Layout, x: &DVector<f64>, fim: &DMatrix<f64>, targets: &
     let p = layout.len();
     let target = targets.si(layout, x);
     let scaled = DMatrix::from_fn(p, p, |a, b| fim[(a, b)] * target[a] * target[b]);
-    let eig = SymmetricEigen::new(scaled);
-    let max = eig.eigenvalues.max().max(f64::MIN_POSITIVE);
+    let max = SymmetricEigen::new(scaled.clone()).eigenvalues.max().max(f64::MIN_POSITIVE);
     let mut weak = Vec::new();
     let mut null = vec![false; p];
-    let mut cov_scaled = DMatrix::zeros(p, p);
-    for (k, &lambda) in eig.eigenvalues.iter().enumerate() {
-        let v = eig.eigenvectors.column(k);
-        let is_null = lambda <= NULL_TOLERANCE * max;
-        if is_null {
-            for i in 0..p {
-                if v[i].abs() > 1e-6 {
-                    null[i] = true;
+    let mut cov_scaled: DMatrix<f64> = DMatrix::zeros(p, p);
+    let mut min = f64::INFINITY;
+    // Decompose each connected block of the information on its own (the baseline model is
+    // block-diagonal by accelerometer), so that a repeated eigenvalue cannot mix the directions
+    // of unrelated parameters.
+    for block in connected_blocks(&scaled) {
+        let sub = DMatrix::from_fn(block.len(), block.len(), |a, b| scaled[(block[a], block[b])]);
+        let eig = SymmetricEigen::new(sub);
+        for (k, &lambda) in eig.eigenvalues.iter().enumerate() {
+            min = min.min(lambda);
+            let v = eig.eigenvectors.column(k);
+            let is_null = lambda <= NULL_TOLERANCE * max;
+            if is_null {
+                for (a, &i) in block.iter().enumerate() {
+                    if v[a].abs() > 1e-6 {
+                        null[i] = true;
+                    }
+                }
+            } else {
+                for (a, &i) in block.iter().enumerate() {
+                    for (b, &j) in block.iter().enumerate() {
+                        cov_scaled[(i, j)] += v[a] * v[b] / lambda;
+                    }
                 }
             }
-        } else {
-            cov_scaled += v * v.transpose() / lambda;
-        }
-        if is_null || lambda < 1.0 {
-            let mut components: Vec<(usize, f64)> = (0..p).filter(|&i| v[i].abs() >= 0.05).map(|i| (i, v[i])).collect();
-            components.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
-            if components.first().is_some_and(|c| c.1 < 0.0) {
-                components.iter_mut().for_each(|c| c.1 = -c.1);
+            if is_null || lambda < 1.0 {
+                let mut components: Vec<(usize, f64)> =
+                    block.iter().enumerate().filter(|(a, _)| v[*a].abs() >= 0.05).map(|(a, &i)| (i, v[a])).collect();
+                components.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
+                if components.first().is_some_and(|c| c.1 < 0.0) {
+                    components.iter_mut().for_each(|c| c.1 = -c.1);
+                }
+                weak.push(Direction {
+                    sigma_in_targets: if is_null { f64::INFINITY } else { 1.0 / lambda.sqrt() },
+                    components,
+                });
             }
-            weak.push(Direction {
-                sigma_in_targets: if is_null { f64::INFINITY } else { 1.0 / lambda.sqrt() },
-                components,
-            });
         }
     }
     weak.sort_by(|a, b| b.sigma_in_targets.total_cmp(&a.sigma_in_targets));
@@ -167,7 +180,6 @@ pub fn analyse(layout: &Layout, x: &DVector<f64>, fim: &DMatrix<f64>, targets: &
         p,
         (0..p).map(|i| if null[i] { f64::INFINITY } else { target[i] * cov_scaled[(i, i)].max(0.0).sqrt() }),
     );
-    let min = eig.eigenvalues.min();
     Identifiability {
         names: layout.names(),
         crb_sigma,
@@ -176,6 +188,34 @@ pub fn analyse(layout: &Layout, x: &DVector<f64>, fim: &DMatrix<f64>, targets: &
         unidentifiable: (0..p).filter(|&i| null[i]).collect(),
         eigen_range: (min, max),
     }
+}
+
+/// Groups of parameters linked by non-zero information (connected components), each sorted.
+fn connected_blocks(m: &DMatrix<f64>) -> Vec<Vec<usize>> {
+    let p = m.nrows();
+    let mut seen = vec![false; p];
+    let mut blocks = Vec::new();
+    for start in 0..p {
+        if seen[start] {
+            continue;
+        }
+        let mut block = vec![start];
+        seen[start] = true;
+        let mut k = 0;
+        while k < block.len() {
+            let i = block[k];
+            for j in 0..p {
+                if !seen[j] && (m[(i, j)] != 0.0 || m[(j, i)] != 0.0) {
+                    seen[j] = true;
+                    block.push(j);
+                }
+            }
+            k += 1;
+        }
+        block.sort_unstable();
+        blocks.push(block);
+    }
+    blocks
 }
 
 /// Structural identifiability: the parameters a schedule cannot identify at a generic point near

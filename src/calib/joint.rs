@@ -176,14 +176,24 @@ fn finish(
         }
         _ => (DMatrix::from_element(p, p, f64::NAN), f64::NAN, f64::INFINITY, f64::NAN),
     };
-    let converged = finite && report.termination.was_successful();
-    let status = FitStatus {
-        converged,
-        iterations: report.number_of_evaluations,
-        cost,
-        condition_number: cond,
-        message: format!("{:?}", report.termination),
-    };
+    let mut converged = finite && report.termination.was_successful();
+    let mut message = format!("{:?}", report.termination);
+    // A solution where an accelerometer's scale factor collapses (a dead or disconnected channel),
+    // or where the Jacobian is singular, is not an answer.
+    let dead: Vec<String> = (0..layout.array().len())
+        .filter(|&j| !(x[PER_ACCEL * j].abs() > 1e-6 / problem.inv_k0[j].abs()))
+        .map(|j| (j + 1).to_string())
+        .collect();
+    if !dead.is_empty() {
+        converged = false;
+        message =
+            format!("scale factor fitted to zero for accelerometer(s) {} (dead channel?); {message}", dead.join(", "));
+    } else if !cond.is_finite() {
+        converged = false;
+        message = format!("singular Jacobian at the solution; {message}");
+    }
+    let status =
+        FitStatus { converged, iterations: report.number_of_evaluations, cost, condition_number: cond, message };
     Ok(Estimate {
         form: layout.form(),
         params: layout.unpack(&x),

@@ -217,3 +217,134 @@ fn bad_noise_is_refused() {
         &["noise.gauss_markov_correlation_time_s"],
     );
 }
+
+const DESIGN: &str = "configs/hung_lee_2006_design.toml";
+
+fn design_with(from: &str, to: &str) -> String {
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(DESIGN)).unwrap();
+    assert!(text.contains(from), "the design config has `{from}`");
+    text.replacen(from, to, 1)
+}
+
+/// The design config with the preset replaced by explicit steps (after the [schedule] keys).
+fn design_with_steps(steps: &str) -> String {
+    design_with("preset = \"hung_lee_2006\"\n", "").replacen(
+        "sample_rate_hz = 100.0\n",
+        &format!("sample_rate_hz = 100.0\n{steps}"),
+        1,
+    )
+}
+
+fn refused_cmd(cmd: &str, text: &str, words: &[&str]) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = config(dir.path(), text);
+    let o = gfcal(&[cmd, path.to_str().unwrap()]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains(path.to_str().unwrap()), "names the file: {err}");
+    for w in words {
+        assert!(err.contains(w), "mentions `{w}`: {err}");
+    }
+}
+
+#[test]
+fn identify_names_the_weak_location_components() {
+    let o = gfcal(&["identify", DESIGN]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    let weak: Vec<&str> = out.lines().filter(|l| l.contains("x target")).collect();
+    assert_eq!(weak.len(), 6, "{out}");
+    for name in ["a1.dz", "a2.dy", "a3.dx", "a4.dx", "a5.dy", "a6.dz"] {
+        assert!(weak.iter().any(|l| l.ends_with(&format!("1.000 {name}"))), "{name}: {out}");
+    }
+}
+
+#[test]
+fn design_adds_the_augmented_spins_and_meets_the_targets() {
+    let o = gfcal(&["design", DESIGN]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("Steps added (2):"), "{out}");
+    assert!(out.contains("spin about [0.0000, 0.7071, 0.7071] at 12.5664 rad/s, + end up"), "{out}");
+    assert!(out.contains("Every Cramer-Rao sigma is below its target with 17 steps."), "{out}");
+}
+
+#[test]
+fn paper_writes_both_tables() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = gfcal(&["paper", "--out", dir.path().to_str().unwrap(), "--trials", "50"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for (name, rows) in [("table8.csv", 24), ("table9.csv", 18)] {
+        let text = std::fs::read_to_string(dir.path().join(name)).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(
+            lines[0],
+            "parameter,accelerometer,unit,true,paper,noise_free,mc_mean,mc_std,crb_sigma,augmented_mc_std,augmented_crb_sigma"
+        );
+        assert_eq!(lines.len(), 1 + rows, "{name}");
+    }
+    let t9 = std::fs::read_to_string(dir.path().join("table9.csv")).unwrap();
+    let a1_dz: Vec<&str> = t9.lines().find(|l| l.starts_with("dz,1,mm")).unwrap().split(',').collect();
+    let v = |k: usize| a1_dz[k].parse::<f64>().unwrap();
+    assert_eq!((v(3), v(4)), (0.6, 8.91), "truth and the paper's value");
+    assert!((v(5) - 0.6).abs() < 1e-9, "noise-free recovery");
+    assert!(v(8) > 1.5 && v(10) < 0.05, "weak on the paper's schedule, fixed by the augmented one");
+    for f in ["table8.md", "table9.md", "table9_from_table8.csv", "settings.json"] {
+        assert!(dir.path().join(f).exists(), "{f}");
+    }
+}
+
+#[test]
+fn bad_calibration_configs_are_refused() {
+    refused_cmd("identify", &design_with("white_density_ug_per_sqrt_hz = 50.0", ""), &["noise", "white noise level"]);
+    refused_cmd(
+        "identify",
+        &design_with("preset = \"hung_lee_2006\"", "preset = \"hung_lee\""),
+        &["schedule.preset", "unknown preset"],
+    );
+    refused_cmd("identify", &design_with("preset = \"hung_lee_2006\"", ""), &["schedule", "no steps"]);
+    refused_cmd(
+        "identify",
+        &design_with("spin_rate_rad_s = 6.283185307179586", "spin_rate_rad_s = 0.0"),
+        &["schedule.spin_rate_rad_s", "non-zero rate"],
+    );
+    refused_cmd("design", &design_with("max_added_steps = 12", "max_added_steps = 0"), &["design.max_added_steps"]);
+    refused_cmd(
+        "identify",
+        &design_with("location_mm = 0.1", "location_mm = -0.1"),
+        &["targets.location_mm", "positive"],
+    );
+    let steps = "[[schedule.step]]\nkind = \"static\"\nup = [0.0, 0.0, 0.0]\n";
+    refused_cmd("identify", &design_with_steps(steps), &["schedule.step[0].up", "not a direction"]);
+    let spin = "[[schedule.step]]\nkind = \"spin\"\naxis = [1.0, 0.0, 0.0]\nrate_rad_s = 0.0\nup_end = \"negative\"\n";
+    refused_cmd("identify", &design_with_steps(spin), &["schedule.step[0].rate_rad_s", "non-zero rate"]);
+    let no_end = "[[schedule.step]]\nkind = \"spin\"\naxis = [1.0, 0.0, 0.0]\n";
+    refused_cmd("identify", &design_with_steps(no_end), &["schedule.step[0].up_end", "required"]);
+}
+
+#[test]
+fn explicit_schedule_in_toml_works() {
+    // The paper's twelve static poses written out, plus three spins: the same answer as the preset.
+    let s = std::f64::consts::FRAC_1_SQRT_2;
+    let mut steps = String::new();
+    for up in [[-s, 0.0, s], [s, 0.0, s], [0.0, s, s], [0.0, -s, s], [s, s, 0.0], [-s, s, 0.0]] {
+        for sign in [1.0, -1.0] {
+            steps.push_str(&format!(
+                "[[schedule.step]]\nkind = \"static\"\nup = [{}, {}, {}]\n",
+                sign * up[0],
+                sign * up[1],
+                sign * up[2]
+            ));
+        }
+    }
+    for axis in ["[1, 0, 0]", "[0, 1, 0]", "[0, 0, 1]"] {
+        steps.push_str(&format!("[[schedule.step]]\nkind = \"spin\"\naxis = {axis}\nup_end = \"negative\"\n"));
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = config(dir.path(), &design_with_steps(&steps));
+    let o = gfcal(&["identify", path.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let preset = gfcal(&["identify", DESIGN]);
+    let body = |o: &Output| String::from_utf8_lossy(&o.stdout).lines().skip(1).collect::<Vec<_>>().join("\n");
+    assert_eq!(body(&o), body(&preset));
+}

@@ -1,5 +1,6 @@
 //! Integration tests of gfcal, one module per domain.
 
+mod calibration;
 mod cli;
 mod common;
 mod mechanization;
