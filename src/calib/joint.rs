@@ -181,7 +181,10 @@ fn finish(
     // A solution where an accelerometer's scale factor collapses (a dead or disconnected channel),
     // or where the Jacobian is singular, is not an answer.
     let dead: Vec<String> = (0..layout.array().len())
-        .filter(|&j| !(x[PER_ACCEL * j].abs() > 1e-6 / problem.inv_k0[j].abs()))
+        .filter(|&j| {
+            let k = x[PER_ACCEL * j];
+            !k.is_finite() || k.abs() <= 1e-6 / problem.inv_k0[j].abs()
+        })
         .map(|j| (j + 1).to_string())
         .collect();
     if !dead.is_empty() {
