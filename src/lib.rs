@@ -15,6 +15,7 @@ pub mod array;
 pub mod calib;
 pub mod config;
 pub mod io;
+pub mod mc;
 pub mod motion;
 pub mod nav;
 pub mod rng;

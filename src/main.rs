@@ -43,6 +43,35 @@ enum Command {
         /// Calibration config (TOML), e.g. configs/hung_lee_2006_design.toml.
         config: PathBuf,
     },
+    /// Run a Monte Carlo sweep: calibration trials and their navigation drift, into Parquet.
+    Run {
+        /// Run config (TOML), e.g. configs/quickstart.toml.
+        config: PathBuf,
+        /// Output folder [default: results/<config name>/].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Finish an interrupted run of the same config in --out (runs only missing parts).
+        #[arg(long)]
+        resume: bool,
+        /// Replace whatever run --out holds.
+        #[arg(long, conflicts_with = "resume")]
+        force: bool,
+        /// Run shard I of N (0-based, e.g. 2/8); defaults to SLURM_ARRAY_TASK_ID /
+        /// SLURM_ARRAY_TASK_COUNT when set.
+        #[arg(long)]
+        shard: Option<String>,
+        /// Worker threads [default: all cores].
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Seconds between progress lines when stderr is not a terminal.
+        #[arg(long, default_value_t = 10.0)]
+        progress_interval_s: f64,
+    },
+    /// Recompute a run's summary (summary.csv) from its Parquet files.
+    Summarize {
+        /// The run's output folder.
+        dir: PathBuf,
+    },
     /// Reproduce Hung & Lee (2006) Tables 8 and 9 (CSV and Markdown) into a folder.
     Paper {
         /// Output folder (created if missing).
@@ -61,6 +90,8 @@ enum Command {
 }
 
 mod commands;
+mod progress;
+mod runs;
 
 /// An error the user can fix by changing the input: exit code 2.
 #[derive(Debug, thiserror::Error)]
@@ -93,6 +124,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Drift { config, csv } => drift(&config, csv.as_deref()),
         Command::Identify { config } => commands::identify(&config),
+        Command::Run { config, out, resume, force, shard, threads, progress_interval_s } => {
+            runs::run(&config, out, resume, force, shard.as_deref(), threads, progress_interval_s)
+        }
+        Command::Summarize { dir } => runs::summarize(&dir),
         Command::Design { config } => commands::design(&config),
         Command::Paper { out, trials, seed, noise_density_ug_per_sqrt_hz } => {
             commands::paper(&out, trials, seed, noise_density_ug_per_sqrt_hz)

@@ -3,17 +3,19 @@
 //!
 //! Residual of step s, accelerometer j: `sqrt(n_s) (mean_sj - s_j(x)) / k0_j`, input-referred
 //! (m/s^2) with the starting scale factor `k0_j` as a fixed weight, so the cost is the per-sample
-//! least-squares cost up to the within-step scatter. The covariance is
-//! `sigma^2 (J^T J)^-1`, `sigma^2` the per-sample residual variance (within-step scatter plus the
-//! misfit of the means, over the degrees of freedom).
+//! least-squares cost up to the within-step scatter. The baseline model is separable by
+//! accelerometer (each output depends on its own 7 parameters only), so the joint problem is
+//! exactly the sum of one 7-parameter problem per accelerometer, and is solved that way. The
+//! covariance is `sigma^2 (J^T J)^-1`, `sigma^2` the per-sample residual variance (within-step
+//! scatter plus the misfit of the means, over the degrees of freedom), pooled over accelerometers.
 
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
-use nalgebra::{DMatrix, DVector, Dyn, Owned};
+use nalgebra::{DMatrix, DVector, Dyn, OMatrix, OVector, Owned, U7};
 
 use super::estimate::{CalibError, Estimate, FitStatus, check_shape, scaled_condition_number};
 use super::fisher::structurally_unidentifiable;
 use super::measure::Measurements;
-use super::params::{Form, Layout, PER_ACCEL};
+use super::params::{Form, Layout, PER_ACCEL, StepMotion};
 use super::schedule::Schedule;
 use crate::sensor::params::ArrayParams;
 
@@ -28,60 +30,55 @@ pub enum Start {
     Linear,
 }
 
-struct Problem<'a> {
+/// The residuals of one accelerometer over all steps.
+struct BlockProblem<'a> {
     layout: &'a Layout,
-    schedule: &'a Schedule,
+    motions: &'a [StepMotion],
     meas: &'a Measurements,
-    g_m_s2: f64,
-    inv_k0: Vec<f64>,
-    x: DVector<f64>,
+    j: usize,
+    inv_k0: f64,
+    x: OVector<f64, U7>,
 }
 
-impl Problem<'_> {
-    fn rows(&self) -> usize {
-        self.schedule.len() * self.layout.array().len()
+impl BlockProblem<'_> {
+    fn xj(&self) -> [f64; PER_ACCEL] {
+        std::array::from_fn(|a| self.x[a])
     }
 }
 
-impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_> {
+impl LeastSquaresProblem<f64, Dyn, U7> for BlockProblem<'_> {
     type ResidualStorage = Owned<f64, Dyn>;
-    type JacobianStorage = Owned<f64, Dyn, Dyn>;
-    type ParameterStorage = Owned<f64, Dyn>;
+    type JacobianStorage = Owned<f64, Dyn, U7>;
+    type ParameterStorage = Owned<f64, U7>;
 
-    fn set_params(&mut self, x: &DVector<f64>) {
+    fn set_params(&mut self, x: &OVector<f64, U7>) {
         self.x.copy_from(x);
     }
 
-    fn params(&self) -> DVector<f64> {
-        self.x.clone()
+    fn params(&self) -> OVector<f64, U7> {
+        self.x
     }
 
     fn residuals(&self) -> Option<DVector<f64>> {
-        let n = self.layout.array().len();
-        let mut r = DVector::zeros(self.rows());
-        let mut out = vec![0.0; n];
-        for (s, (step, m)) in self.schedule.steps().iter().zip(&self.meas.steps).enumerate() {
-            self.layout.step_model(&self.x, step, self.g_m_s2, &mut out, None);
-            let w = (m.samples as f64).sqrt();
-            for j in 0..n {
-                r[s * n + j] = w * (m.mean[j] - out[j]) * self.inv_k0[j];
-            }
-        }
+        let xj = self.xj();
+        let r = DVector::from_iterator(
+            self.motions.len(),
+            self.motions.iter().zip(&self.meas.steps).map(|(m, st)| {
+                let (s, _) = self.layout.accel_model(self.j, &xj, m);
+                (st.samples as f64).sqrt() * (st.mean[self.j] - s) * self.inv_k0
+            }),
+        );
         r.iter().all(|v| v.is_finite()).then_some(r)
     }
 
-    fn jacobian(&self) -> Option<DMatrix<f64>> {
-        let n = self.layout.array().len();
-        let mut jm = DMatrix::zeros(self.rows(), self.layout.len());
-        let mut out = vec![0.0; n];
-        let mut jac = vec![[0.0; PER_ACCEL]; n];
-        for (s, (step, m)) in self.schedule.steps().iter().zip(&self.meas.steps).enumerate() {
-            self.layout.step_model(&self.x, step, self.g_m_s2, &mut out, Some(&mut jac));
-            let w = (m.samples as f64).sqrt();
-            for (j, gj) in jac.iter().enumerate() {
-                for (a, v) in gj.iter().enumerate() {
-                    jm[(s * n + j, PER_ACCEL * j + a)] = -w * v * self.inv_k0[j];
-                }
+    fn jacobian(&self) -> Option<OMatrix<f64, Dyn, U7>> {
+        let xj = self.xj();
+        let mut jm = OMatrix::<f64, Dyn, U7>::zeros(self.motions.len());
+        for (row, (m, st)) in self.motions.iter().zip(&self.meas.steps).enumerate() {
+            let (_, d) = self.layout.accel_model(self.j, &xj, m);
+            let w = -(st.samples as f64).sqrt() * self.inv_k0;
+            for (a, v) in d.iter().enumerate() {
+                jm[(row, a)] = w * v;
             }
         }
         jm.iter().all(|v| v.is_finite()).then_some(jm)
@@ -138,73 +135,92 @@ pub fn estimate_unchecked(
             .and_then(|p| layout.pack(&p).ok())
             .unwrap_or(x_nominal),
     };
-    let inv_k0 = (0..layout.array().len()).map(|j| 1.0 / nominal.sensors[j].scale_factor).collect();
-    let problem = Problem { layout, schedule, meas, g_m_s2, inv_k0, x: x0 };
-    let (problem, report) = LevenbergMarquardt::new().with_patience(200).minimize(problem);
-    finish(layout, meas, &problem, report)
-}
-
-fn finish(
-    layout: &Layout,
-    meas: &Measurements,
-    problem: &Problem<'_>,
-    report: levenberg_marquardt::MinimizationReport<f64>,
-) -> Result<Estimate, CalibError> {
-    let x = problem.x.clone();
-    let residuals = problem.residuals();
-    let jac = problem.jacobian();
-    let finite = x.iter().all(|v| v.is_finite()) && residuals.is_some() && jac.is_some();
+    let motions: Vec<StepMotion> = schedule.steps().iter().map(|s| StepMotion::new(s, g_m_s2)).collect();
+    let n = layout.array().len();
     let p = layout.len();
-    let (cov, sigma, cond, cost) = match (residuals, jac) {
-        (Some(r), Some(j)) => {
-            let n = layout.array().len();
-            let within: f64 = meas
-                .steps
-                .iter()
-                .map(|m| (0..n).map(|a| m.within_ss[a] * problem.inv_k0[a].powi(2)).sum::<f64>())
-                .sum();
-            let samples: usize = meas.steps.iter().map(|m| m.samples * n).sum();
-            let dof = samples.saturating_sub(p).max(1) as f64;
-            let sigma2 = (within + r.norm_squared()) / dof;
-            let jtj = j.transpose() * &j;
-            let cov = jtj
-                .clone()
-                .try_inverse()
-                .map(|inv| inv * sigma2)
-                .unwrap_or_else(|| DMatrix::from_element(p, p, f64::NAN));
-            (cov, sigma2.sqrt(), scaled_condition_number(&j), 0.5 * r.norm_squared())
+    let mut x = x0.clone();
+    let mut jtj = DMatrix::zeros(p, p);
+    let (mut misfit, mut iterations, mut condition) = (0.0, 0, 1.0f64);
+    let mut converged = true;
+    let mut messages = Vec::new();
+    let mut dead = Vec::new();
+    for j in 0..n {
+        let o = PER_ACCEL * j;
+        let inv_k0 = 1.0 / nominal.sensors[j].scale_factor;
+        let x_block = OVector::<f64, U7>::from_fn(|a, _| x0[o + a]);
+        let problem = BlockProblem { layout, motions: &motions, meas, j, inv_k0, x: x_block };
+        let (problem, report) = LevenbergMarquardt::new().with_patience(200).minimize(problem);
+        iterations += report.number_of_evaluations;
+        x.rows_mut(o, PER_ACCEL).copy_from(&problem.x);
+        match (problem.residuals(), problem.jacobian()) {
+            (Some(r), Some(jac)) => {
+                misfit += r.norm_squared();
+                jtj.view_mut((o, o), (PER_ACCEL, PER_ACCEL)).copy_from(&(jac.transpose() * &jac));
+                let dyn_jac = DMatrix::from_iterator(jac.nrows(), PER_ACCEL, jac.iter().copied());
+                condition = condition.max(scaled_condition_number(&dyn_jac));
+            }
+            _ => {
+                misfit = f64::NAN;
+                condition = f64::INFINITY;
+            }
         }
-        _ => (DMatrix::from_element(p, p, f64::NAN), f64::NAN, f64::INFINITY, f64::NAN),
-    };
-    let mut converged = finite && report.termination.was_successful();
-    let mut message = format!("{:?}", report.termination);
+        if !report.termination.was_successful() {
+            converged = false;
+            messages.push(format!("accelerometer {}: {:?}", j + 1, report.termination));
+        }
+        let k = problem.x[0];
+        if !k.is_finite() || k.abs() <= 1e-6 / inv_k0.abs() {
+            dead.push((j + 1).to_string());
+        }
+    }
+    let within: f64 = meas
+        .steps
+        .iter()
+        .map(|m| (0..n).map(|a| m.within_ss[a] / nominal.sensors[a].scale_factor.powi(2)).sum::<f64>())
+        .sum();
+    let samples: usize = meas.steps.iter().map(|m| m.samples * n).sum();
+    let sigma2 = (within + misfit) / samples.saturating_sub(p).max(1) as f64;
+    let covariance =
+        block_inverse(&jtj, n).map(|inv| inv * sigma2).unwrap_or_else(|| DMatrix::from_element(p, p, f64::NAN));
+    let finite = x.iter().all(|v| v.is_finite()) && misfit.is_finite();
+    let mut message = if messages.is_empty() { "converged".to_string() } else { messages.join("; ") };
     // A solution where an accelerometer's scale factor collapses (a dead or disconnected channel),
     // or where the Jacobian is singular, is not an answer.
-    let dead: Vec<String> = (0..layout.array().len())
-        .filter(|&j| {
-            let k = x[PER_ACCEL * j];
-            !k.is_finite() || k.abs() <= 1e-6 / problem.inv_k0[j].abs()
-        })
-        .map(|j| (j + 1).to_string())
-        .collect();
     if !dead.is_empty() {
         converged = false;
         message =
             format!("scale factor fitted to zero for accelerometer(s) {} (dead channel?); {message}", dead.join(", "));
-    } else if !cond.is_finite() {
+    } else if !condition.is_finite() {
         converged = false;
         message = format!("singular Jacobian at the solution; {message}");
     }
-    let status =
-        FitStatus { converged, iterations: report.number_of_evaluations, cost, condition_number: cond, message };
+    let status = FitStatus {
+        converged: converged && finite,
+        iterations,
+        cost: 0.5 * misfit,
+        condition_number: condition,
+        message,
+    };
     Ok(Estimate {
         form: layout.form(),
         params: layout.unpack(&x),
         x,
-        covariance: cov,
-        residual_sigma_m_s2: sigma,
+        covariance,
+        residual_sigma_m_s2: sigma2.sqrt(),
         status,
     })
+}
+
+/// Inverse of a block-diagonal matrix with `n` blocks of 7.
+fn block_inverse(m: &DMatrix<f64>, n: usize) -> Option<DMatrix<f64>> {
+    let p = m.nrows();
+    let mut inv = DMatrix::zeros(p, p);
+    for j in 0..n {
+        let o = PER_ACCEL * j;
+        let block = m.view((o, o), (PER_ACCEL, PER_ACCEL)).clone_owned().try_inverse()?;
+        inv.view_mut((o, o), (PER_ACCEL, PER_ACCEL)).copy_from(&block);
+    }
+    Some(inv)
 }
 
 /// The form-independent convenience: a layout for `form` and a joint fit.

@@ -280,22 +280,40 @@ impl Layout {
         out: &mut [f64],
         mut jac: Option<&mut [[f64; PER_ACCEL]]>,
     ) {
-        let w = step.omega_b_rad_s();
-        let big_w = w * w.transpose() - Matrix3::identity() * w.norm_squared();
-        let gu = step.up_b() * g_m_s2;
-        for (j, acc) in self.array.accelerometers().iter().enumerate() {
-            let o = PER_ACCEL * j;
-            let (k, b) = (x[o], x[o + 1]);
-            let (a, da) = self.axis(j, [x[o + 2], x[o + 3]]);
-            let dr = Vector3::new(x[o + 4], x[o + 5], x[o + 6]);
-            let f = gu + big_w * (acc.position_m + dr);
-            let af = a.dot(&f);
-            out[j] = k * (b + af);
+        let motion = StepMotion::new(step, g_m_s2);
+        for (j, o) in out.iter_mut().enumerate() {
+            let xj: [f64; PER_ACCEL] = std::array::from_fn(|a| x[PER_ACCEL * j + a]);
+            let (s, d) = self.accel_model(j, &xj, &motion);
+            *o = s;
             if let Some(jac) = jac.as_deref_mut() {
-                let wa = big_w * a * k;
-                jac[j] = [b + af, k, k * da[0].dot(&f), k * da[1].dot(&f), wa.x, wa.y, wa.z];
+                jac[j] = d;
             }
         }
+    }
+
+    /// Mean output of accelerometer `j` with parameters `xj` in a step, and its 7 partials.
+    pub fn accel_model(&self, j: usize, xj: &[f64; PER_ACCEL], motion: &StepMotion) -> (f64, [f64; PER_ACCEL]) {
+        let [k, b, m1, m2, dx, dy, dz] = *xj;
+        let (a, da) = self.axis(j, [m1, m2]);
+        let dr = Vector3::new(dx, dy, dz);
+        let f = motion.gravity_up_m_s2 + motion.w2 * (self.array.accelerometers()[j].position_m + dr);
+        let af = a.dot(&f);
+        let wa = motion.w2 * a * k;
+        (k * (b + af), [b + af, k, k * da[0].dot(&f), k * da[1].dot(&f), wa.x, wa.y, wa.z])
+    }
+}
+
+/// What a step does to the specific force: `f(r) = g up + W r`, `W = [omega x]^2`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepMotion {
+    pub gravity_up_m_s2: Vector3<f64>,
+    pub w2: Matrix3<f64>,
+}
+
+impl StepMotion {
+    pub fn new(step: &Step, g_m_s2: f64) -> Self {
+        let w = step.omega_b_rad_s();
+        Self { gravity_up_m_s2: step.up_b() * g_m_s2, w2: w * w.transpose() - Matrix3::identity() * w.norm_squared() }
     }
 }
 

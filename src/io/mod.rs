@@ -2,6 +2,7 @@
 //! half-written file.
 
 pub mod csv;
+pub mod parquet;
 
 use std::io::Write;
 use std::path::Path;

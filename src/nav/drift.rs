@@ -20,6 +20,17 @@ pub struct DriftSample {
 }
 
 impl DriftSample {
+    /// A navigation that diverged before `horizon_s` (its state stopped being finite).
+    pub fn diverged(horizon_s: f64) -> Self {
+        Self {
+            horizon_s,
+            rate_err_rad_s: f64::INFINITY,
+            attitude_err_rad: f64::INFINITY,
+            velocity_err_m_s: f64::INFINITY,
+            position_err_m: f64::INFINITY,
+        }
+    }
+
     pub fn new(horizon_s: f64, nav: &NavState, truth: &TruthState) -> Self {
         Self {
             horizon_s,

@@ -103,6 +103,16 @@ pub fn navigate(
             };
             x.q = x.q.normalize();
             t_s = if h == step_s { t_s + h } else { horizon };
+            // The rate equation is quadratic in omega (centripetal terms): with large enough
+            // errors it blows up in finite time. A diverged navigation reports infinite errors.
+            if !(x.w.iter().chain(x.v.iter()).chain(x.r.iter()).all(|v| v.is_finite()) && x.q.norm().is_finite()) {
+                for &(h, record) in stops.iter().filter(|(h, _)| *h >= horizon) {
+                    if record {
+                        drift.push(DriftSample::diverged(h));
+                    }
+                }
+                return drift;
+            }
         }
         if record {
             let nav =

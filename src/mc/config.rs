@@ -1,0 +1,570 @@
+//! The config of `gfcal run`: everything a sweep needs, checked cell by cell before anything runs.
+//!
+//! ```toml
+//! name = "quickstart"             # default: the file's stem
+//! seed = 1                        # master seed
+//! trials_per_cell = 20000
+//!
+//! [array]                         # as for `drift`
+//! [noise]                         # as for `drift`; white noise also sets the Cramer-Rao sigmas
+//! [schedule]                      # as for `identify`
+//! [calibration]                   # form, estimator, start, gravity_m_s2
+//!
+//! [errors]
+//! nominal_scale_factor = 1.0      # one, or one per accelerometer
+//! bias_mg = { dist = "normal", sigma = 1.0 }                   # mean defaults to 0
+//! scale_factor_ppm = { dist = "uniform", half_width = 500.0 }  # deviation from nominal
+//! misalignment_deg = { dist = "normal", sigma = 0.5 }          # the two angles of the form
+//! location_mm = { dist = "fixed", value = [[0.5, 0.8, 0.6], ...] }
+//!
+//! [trajectory]                    # as for `drift`
+//! [navigation]
+//! step_s = 0.01
+//! horizons_s = [1, 2, 5, 10]
+//! compensations = ["nominal", "estimated", "true"]
+//! noise = false                   # navigate noise-free outputs (isolates calibration residuals)
+//!
+//! [output]
+//! trials_per_part = 2048          # rows of trials per Parquet part file
+//!
+//! [sweep]                         # optional
+//! design = "factorial"            # or "latin_hypercube" / "sobol" (with `points`)
+//! points = 16
+//! [[sweep.factor]]
+//! key = "noise.white_density_ug_per_sqrt_hz"
+//! levels = [10.0, 50.0, 200.0]    # listed levels: crossed factorially
+//! [[sweep.factor]]
+//! key = "errors.location_mm.sigma"
+//! low = 0.1                       # continuous: sampled by the space-filling design
+//! high = 2.0
+//! scale = "log"                   # or "linear"
+//! ```
+//!
+//! A sweep factor overrides one key of this file (any key, dotted path) for each cell; every cell
+//! is then read and checked as a config of its own, so a bad level is refused before the run
+//! with the factor's key and level named.
+
+use std::path::Path;
+
+use serde::Deserialize;
+
+use super::design::{factorial, latin_hypercube, sobol};
+use super::sample::{Dist, ErrorModel};
+use crate::array::Array;
+use crate::calib::params::{Form, Layout};
+use crate::calib::schedule::Schedule;
+use crate::config::array::ArraySection;
+use crate::config::calibration::{CalibrationSection, CalibrationSettings};
+use crate::config::noise::NoiseSection;
+use crate::config::schedule::ScheduleSection;
+use crate::config::trajectory::TrajectorySection;
+use crate::config::{Bad, ConfigError, OneOrEach, finite, positive};
+use crate::nav::Trajectory;
+use crate::sensor::noise::NoiseSpec;
+use crate::units::{M_PER_MM, M_S2_PER_MG, RAD_PER_DEG};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DistKind {
+    Normal,
+    Uniform,
+    Fixed,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, bound(deserialize = "T: serde::de::DeserializeOwned"))]
+pub struct DistEntry<T> {
+    pub dist: DistKind,
+    pub mean: Option<f64>,
+    pub sigma: Option<f64>,
+    pub half_width: Option<f64>,
+    pub value: Option<OneOrEach<T>>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct McErrorsSection {
+    pub nominal_scale_factor: Option<OneOrEach<f64>>,
+    pub bias_mg: Option<DistEntry<f64>>,
+    pub scale_factor_ppm: Option<DistEntry<f64>>,
+    pub misalignment_deg: Option<DistEntry<[f64; 2]>>,
+    pub location_mm: Option<DistEntry<[f64; 3]>>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Compensation {
+    Nominal,
+    Estimated,
+    True,
+}
+
+impl Compensation {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Compensation::Nominal => "nominal",
+            Compensation::Estimated => "estimated",
+            Compensation::True => "true",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct McNavigationSection {
+    pub step_s: f64,
+    pub horizons_s: Vec<f64>,
+    pub compensations: Option<Vec<Compensation>>,
+    pub noise: Option<bool>,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSection {
+    pub trials_per_part: Option<u64>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum DesignKind {
+    #[default]
+    Factorial,
+    LatinHypercube,
+    Sobol,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Scale {
+    #[default]
+    Linear,
+    Log,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FactorEntry {
+    pub key: String,
+    pub levels: Option<Vec<toml::Value>>,
+    pub low: Option<f64>,
+    pub high: Option<f64>,
+    pub scale: Option<Scale>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SweepSection {
+    #[serde(default)]
+    pub design: DesignKind,
+    pub points: Option<usize>,
+    #[serde(default)]
+    pub factor: Vec<FactorEntry>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct McFile {
+    pub name: Option<String>,
+    pub seed: u64,
+    pub trials_per_cell: u64,
+    #[serde(default)]
+    pub array: ArraySection,
+    pub errors: McErrorsSection,
+    #[serde(default)]
+    pub noise: NoiseSection,
+    pub schedule: ScheduleSection,
+    #[serde(default)]
+    pub calibration: CalibrationSection,
+    pub trajectory: TrajectorySection,
+    pub navigation: McNavigationSection,
+    #[serde(default)]
+    pub output: OutputSection,
+    pub sweep: Option<SweepSection>,
+}
+
+/// A sweep factor's value in one cell.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FactorValue {
+    Number(f64),
+    Text(String),
+}
+
+/// Navigation settings of a cell, SI.
+#[derive(Debug, Clone)]
+pub struct McNavigation {
+    pub trajectory: Trajectory,
+    pub step_s: f64,
+    pub horizons_s: Vec<f64>,
+    pub compensations: Vec<Compensation>,
+    pub noise: bool,
+}
+
+/// One cell of a sweep: a complete, checked trial setup.
+#[derive(Debug, Clone)]
+pub struct Cell {
+    pub index: usize,
+    /// (factor key, value), in the sweep's factor order.
+    pub factors: Vec<(String, FactorValue)>,
+    pub array: Array,
+    pub layout: Layout,
+    pub errors: ErrorModel,
+    pub noise: NoiseSpec,
+    pub schedule: Schedule,
+    pub calibration: CalibrationSettings,
+    pub navigation: McNavigation,
+}
+
+/// A checked run config.
+#[derive(Debug, Clone)]
+pub struct McConfig {
+    pub name: String,
+    pub seed: u64,
+    pub trials_per_cell: u64,
+    pub trials_per_part: u64,
+    pub factor_keys: Vec<String>,
+    pub cells: Vec<Cell>,
+    pub text: String,
+}
+
+impl McConfig {
+    pub fn total_trials(&self) -> u64 {
+        self.trials_per_cell * self.cells.len() as u64
+    }
+
+    pub fn parts(&self) -> u64 {
+        self.total_trials().div_ceil(self.trials_per_part)
+    }
+
+    /// Reads and checks a run config and every cell of its sweep.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text =
+            std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
+        Self::from_text(text, path)
+    }
+
+    /// Reads and checks a run config given as text; `path` names it in messages and anchors
+    /// relative files.
+    pub fn from_text(text: String, path: &Path) -> Result<Self, ConfigError> {
+        let base: toml::Table = toml::from_str(&text)
+            .map_err(|e| ConfigError::Parse { path: path.to_path_buf(), message: e.to_string() })?;
+        let file: McFile = base
+            .clone()
+            .try_into()
+            .map_err(|e: toml::de::Error| ConfigError::Parse { path: path.to_path_buf(), message: e.to_string() })?;
+        let bad = |b: Bad| b.in_file(path);
+        if file.trials_per_cell == 0 {
+            return Err(bad(Bad::new("trials_per_cell", "must be at least 1")));
+        }
+        let trials_per_part = file.output.trials_per_part.unwrap_or(2048);
+        if trials_per_part == 0 {
+            return Err(bad(Bad::new("output.trials_per_part", "must be at least 1")));
+        }
+        let name = file.name.clone().unwrap_or_else(|| {
+            path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "run".into())
+        });
+        if name.is_empty() || name.contains(['/', '\\']) {
+            return Err(bad(Bad::new("name", format!("`{name}` cannot name a results folder"))));
+        }
+        let (factor_keys, assignments) = match &file.sweep {
+            None => (vec![], vec![vec![]]),
+            Some(s) => sweep_cells(s, file.seed).map_err(bad)?,
+        };
+        let mut cells = Vec::with_capacity(assignments.len());
+        for (index, values) in assignments.into_iter().enumerate() {
+            let mut doc = base.clone();
+            doc.remove("sweep");
+            for (key, value) in factor_keys.iter().zip(&values) {
+                set_dotted(&mut doc, key, toml_value(value))
+                    .map_err(|p| bad(Bad::new(format!("sweep.factor `{key}`"), p)))?;
+            }
+            let describe = || {
+                factor_keys
+                    .iter()
+                    .zip(&values)
+                    .map(|(k, v)| format!("{k} = {}", fmt_value(v)))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            let cell_file: McFile = doc.try_into().map_err(|e: toml::de::Error| ConfigError::Parse {
+                path: path.to_path_buf(),
+                message: format!("in the sweep cell with {}: {}", describe(), e.message()),
+            })?;
+            let cell = build_cell(&cell_file, path, index, factor_keys.iter().cloned().zip(values.clone()).collect())
+                .map_err(|e| match e {
+                ConfigError::Invalid { path, key, problem } if !factor_keys.is_empty() => ConfigError::Invalid {
+                    path,
+                    key,
+                    problem: format!("{problem} (in the sweep cell with {})", describe()),
+                },
+                other => other,
+            })?;
+            cells.push(cell);
+        }
+        Ok(Self {
+            name,
+            seed: file.seed,
+            trials_per_cell: file.trials_per_cell,
+            trials_per_part,
+            factor_keys,
+            cells,
+            text,
+        })
+    }
+}
+
+fn fmt_value(v: &FactorValue) -> String {
+    match v {
+        FactorValue::Number(x) => format!("{x}"),
+        FactorValue::Text(s) => format!("\"{s}\""),
+    }
+}
+
+fn toml_value(v: &FactorValue) -> toml::Value {
+    match v {
+        FactorValue::Number(x) => toml::Value::Float(*x),
+        FactorValue::Text(s) => toml::Value::String(s.clone()),
+    }
+}
+
+/// Sets `a.b.c = value` in a TOML table, creating tables on the way.
+fn set_dotted(doc: &mut toml::Table, key: &str, value: toml::Value) -> Result<(), String> {
+    let parts: Vec<&str> = key.split('.').collect();
+    if parts.iter().any(|p| p.is_empty()) {
+        return Err("is not a dotted key".into());
+    }
+    let mut table = doc;
+    for p in &parts[..parts.len() - 1] {
+        let entry = table.entry(p.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        table = entry.as_table_mut().ok_or_else(|| format!("`{p}` is not a table"))?;
+    }
+    // An integer key (e.g. trials) keeps its type when the level is a whole number.
+    let last = parts[parts.len() - 1].to_string();
+    let value = match (&value, table.get(&last)) {
+        (toml::Value::Float(f), Some(toml::Value::Integer(_))) if f.fract() == 0.0 => toml::Value::Integer(*f as i64),
+        _ => value,
+    };
+    table.insert(last, value);
+    Ok(())
+}
+
+type Assignments = (Vec<String>, Vec<Vec<FactorValue>>);
+
+fn sweep_cells(s: &SweepSection, seed: u64) -> Result<Assignments, Bad> {
+    if s.factor.is_empty() {
+        return Err(Bad::new("sweep.factor", "a sweep needs at least one [[sweep.factor]] (or no [sweep] at all)"));
+    }
+    let mut listed: Vec<(usize, Vec<FactorValue>)> = Vec::new();
+    let mut continuous: Vec<(usize, f64, f64, Scale)> = Vec::new();
+    for (i, f) in s.factor.iter().enumerate() {
+        let key = |k: &str| format!("sweep.factor[{i}].{k}");
+        if f.key.trim().is_empty() {
+            return Err(Bad::new(key("key"), "is empty"));
+        }
+        match (&f.levels, f.low, f.high) {
+            (Some(levels), None, None) => {
+                if levels.is_empty() {
+                    return Err(Bad::new(key("levels"), "is empty: give at least one level"));
+                }
+                let vals = levels
+                    .iter()
+                    .map(|v| match v {
+                        toml::Value::Float(x) => Ok(FactorValue::Number(*x)),
+                        toml::Value::Integer(x) => Ok(FactorValue::Number(*x as f64)),
+                        toml::Value::String(t) => Ok(FactorValue::Text(t.clone())),
+                        other => Err(Bad::new(key("levels"), format!("levels are numbers or strings, got {other}"))),
+                    })
+                    .collect::<Result<Vec<_>, _>>()?;
+                listed.push((i, vals));
+            }
+            (None, Some(lo), Some(hi)) => {
+                if s.design == DesignKind::Factorial {
+                    return Err(Bad::new(
+                        key("low"),
+                        "a continuous factor needs design = \"latin_hypercube\" or \"sobol\"",
+                    ));
+                }
+                finite(&key("low"), lo)?;
+                finite(&key("high"), hi)?;
+                if hi <= lo {
+                    return Err(Bad::new(key("high"), format!("must be above low ({lo}), got {hi}")));
+                }
+                let scale = f.scale.unwrap_or_default();
+                if scale == Scale::Log && lo <= 0.0 {
+                    return Err(Bad::new(key("low"), "a log scale needs low > 0"));
+                }
+                continuous.push((i, lo, hi, scale));
+            }
+            _ => return Err(Bad::new(format!("sweep.factor[{i}]"), "give either `levels`, or `low` and `high`")),
+        }
+    }
+    let points = if continuous.is_empty() {
+        vec![vec![]]
+    } else {
+        let n = s.points.ok_or_else(|| Bad::new("sweep.points", "needed with continuous factors"))?;
+        if n == 0 {
+            return Err(Bad::new("sweep.points", "must be at least 1"));
+        }
+        let mut rng = crate::rng::trial_rng(seed ^ 0x5357_4545_5000, 0);
+        let unit = match s.design {
+            DesignKind::LatinHypercube => latin_hypercube(n, continuous.len(), &mut rng),
+            _ => sobol(n, continuous.len(), (seed & 0xffff_ffff) as u32),
+        };
+        unit.into_iter()
+            .map(|u| {
+                u.iter()
+                    .zip(&continuous)
+                    .map(|(u, (_, lo, hi, scale))| match scale {
+                        Scale::Linear => lo + u * (hi - lo),
+                        Scale::Log => (lo.ln() + u * (hi.ln() - lo.ln())).exp(),
+                    })
+                    .collect()
+            })
+            .collect()
+    };
+    let combos = factorial(&listed.iter().map(|(_, v)| v.len()).collect::<Vec<_>>());
+    let keys: Vec<String> = s.factor.iter().map(|f| f.key.clone()).collect();
+    let mut cells = Vec::new();
+    for combo in &combos {
+        for point in &points {
+            let mut values = vec![FactorValue::Number(f64::NAN); keys.len()];
+            for ((i, levels), &l) in listed.iter().zip(combo) {
+                values[*i] = levels[l].clone();
+            }
+            for ((i, ..), v) in continuous.iter().zip(point) {
+                values[*i] = FactorValue::Number(*v);
+            }
+            cells.push(values);
+        }
+    }
+    Ok((keys, cells))
+}
+
+fn dist<T: Clone>(
+    key: &str,
+    entry: &Option<DistEntry<T>>,
+    n: usize,
+    width: usize,
+    to_si: f64,
+    components: impl Fn(&T) -> Vec<f64>,
+) -> Result<Dist, Bad> {
+    let Some(e) = entry else { return Ok(Dist::Fixed(vec![vec![0.0; width]; n])) };
+    let k = |s: &str| format!("errors.{key}.{s}");
+    let mean = finite(&k("mean"), e.mean.unwrap_or(0.0))? * to_si;
+    let forbid = |name: &str, given: bool, kind: &str| {
+        if given { Err(Bad::new(k(name), format!("does not apply to dist = \"{kind}\""))) } else { Ok(()) }
+    };
+    match e.dist {
+        DistKind::Normal => {
+            forbid("half_width", e.half_width.is_some(), "normal")?;
+            forbid("value", e.value.is_some(), "normal")?;
+            let sigma = e.sigma.ok_or_else(|| Bad::new(k("sigma"), "is required for dist = \"normal\""))?;
+            if !(finite(&k("sigma"), sigma)? >= 0.0) {
+                return Err(Bad::new(k("sigma"), format!("must not be negative, got {sigma}")));
+            }
+            Ok(Dist::Normal { mean, sigma: sigma * to_si })
+        }
+        DistKind::Uniform => {
+            forbid("sigma", e.sigma.is_some(), "uniform")?;
+            forbid("value", e.value.is_some(), "uniform")?;
+            let hw = e.half_width.ok_or_else(|| Bad::new(k("half_width"), "is required for dist = \"uniform\""))?;
+            if !(finite(&k("half_width"), hw)? >= 0.0) {
+                return Err(Bad::new(k("half_width"), format!("must not be negative, got {hw}")));
+            }
+            Ok(Dist::Uniform { mean, half_width: hw * to_si })
+        }
+        DistKind::Fixed => {
+            for (name, given) in
+                [("mean", e.mean.is_some()), ("sigma", e.sigma.is_some()), ("half_width", e.half_width.is_some())]
+            {
+                forbid(name, given, "fixed")?;
+            }
+            let v = e.value.as_ref().ok_or_else(|| Bad::new(k("value"), "is required for dist = \"fixed\""))?;
+            let rows = v.expand(&k("value"), n)?;
+            let mut out = Vec::with_capacity(n);
+            for (j, r) in rows.iter().enumerate() {
+                let c = components(r);
+                let mut row = Vec::with_capacity(width);
+                for (i, x) in c.iter().enumerate() {
+                    row.push(finite(&format!("{}[{j}][{i}]", k("value")), *x)? * to_si);
+                }
+                out.push(row);
+            }
+            Ok(Dist::Fixed(out))
+        }
+    }
+}
+
+fn build_cell(f: &McFile, path: &Path, index: usize, factors: Vec<(String, FactorValue)>) -> Result<Cell, ConfigError> {
+    let bad = |b: Bad| b.in_file(path);
+    let array = f.array.build(path)?;
+    let n = array.len();
+    let e = &f.errors;
+    let nominal_scale_factor = e
+        .nominal_scale_factor
+        .clone()
+        .unwrap_or(OneOrEach::One(1.0))
+        .expand("errors.nominal_scale_factor", n)
+        .map_err(bad)?;
+    for (j, k) in nominal_scale_factor.iter().enumerate() {
+        let key = format!("errors.nominal_scale_factor[{j}]");
+        if finite(&key, *k).map_err(bad)? == 0.0 {
+            return Err(bad(Bad::new(key, "a scale factor of zero makes the accelerometer blind")));
+        }
+    }
+    let errors = ErrorModel {
+        nominal_scale_factor,
+        bias_m_s2: dist("bias_mg", &e.bias_mg, n, 1, M_S2_PER_MG, |v| vec![*v]).map_err(bad)?,
+        scale_factor_rel: dist("scale_factor_ppm", &e.scale_factor_ppm, n, 1, 1e-6, |v| vec![*v]).map_err(bad)?,
+        misalignment_rad: dist("misalignment_deg", &e.misalignment_deg, n, 2, RAD_PER_DEG, |v| v.to_vec())
+            .map_err(bad)?,
+        location_m: dist("location_mm", &e.location_mm, n, 3, M_PER_MM, |v| v.to_vec()).map_err(bad)?,
+    };
+    let (noise, _) = f.noise.resolve().map_err(bad)?;
+    let schedule = f.schedule.build(&array).map_err(bad)?;
+    let calibration = f.calibration.resolve().map_err(bad)?;
+    if calibration.form == Form::Triad && array.triads().is_empty() {
+        return Err(bad(Bad::new("calibration.form", "the triad form needs an array with triads; use \"tilt\"")));
+    }
+    let layout = Layout::new(&array, calibration.form).map_err(|e| bad(Bad::new("calibration.form", e.to_string())))?;
+    let nav = &f.navigation;
+    let step_s = positive("navigation.step_s", nav.step_s).map_err(bad)?;
+    if nav.horizons_s.is_empty() {
+        return Err(bad(Bad::new("navigation.horizons_s", "needs at least one horizon")));
+    }
+    let mut horizons_s = Vec::new();
+    for (k, h) in nav.horizons_s.iter().enumerate() {
+        horizons_s.push(positive(&format!("navigation.horizons_s[{k}]"), *h).map_err(bad)?);
+    }
+    horizons_s.sort_by(f64::total_cmp);
+    horizons_s.dedup();
+    let mut compensations =
+        nav.compensations.clone().unwrap_or_else(|| vec![Compensation::Nominal, Compensation::Estimated]);
+    let mut seen = Vec::new();
+    compensations.retain(|c| {
+        if seen.contains(c) {
+            false
+        } else {
+            seen.push(*c);
+            true
+        }
+    });
+    if compensations.is_empty() {
+        return Err(bad(Bad::new(
+            "navigation.compensations",
+            "needs at least one of \"nominal\", \"estimated\", \"true\"",
+        )));
+    }
+    let last = horizons_s.last().copied().unwrap_or(1.0);
+    let trajectory = f.trajectory.build(last).map_err(bad)?;
+    Ok(Cell {
+        index,
+        factors,
+        array,
+        layout,
+        errors,
+        noise,
+        schedule,
+        calibration,
+        navigation: McNavigation { trajectory, step_s, horizons_s, compensations, noise: nav.noise.unwrap_or(false) },
+    })
+}

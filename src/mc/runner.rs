@@ -1,0 +1,249 @@
+//! Runs a config's trials into an output folder, part by part.
+//!
+//! Layout of `DIR`: `run.json` (provenance: version, commit, config text, seed, times),
+//! `trials/part-NNNNNN.parquet`, `parameters/part-NNNNNN.parquet` (part `p` holds trials
+//! `p T .. (p + 1) T`, `T = output.trials_per_part`), `summary.csv`. A part's parameters file is
+//! written before its trials file, each atomically; a part is done when its trials file exists.
+//! Shard `i` of `n` runs the parts with `p % n == i`.
+
+use std::path::{Path, PathBuf};
+use std::time::SystemTime;
+
+use rayon::prelude::*;
+
+use super::config::McConfig;
+use super::trial::{Prepared, TrialRecord, run_trial};
+use crate::io::parquet::{ParquetIoError, parameters_batch, trials_batch, write_part};
+
+/// Receives progress; must not block (called from worker threads).
+pub trait Observer: Sync {
+    /// `total` trials in this shard, `done` of them already on disk.
+    fn start(&self, total: u64, done: u64);
+    fn advance(&self, trials: u64);
+    fn finish(&self);
+}
+
+/// An observer that ignores everything.
+pub struct Silent;
+
+impl Observer for Silent {
+    fn start(&self, _: u64, _: u64) {}
+    fn advance(&self, _: u64) {}
+    fn finish(&self) {}
+}
+
+/// How to run.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    pub out: PathBuf,
+    /// Continue a run of the same config in `out`, running only missing parts.
+    pub resume: bool,
+    /// Delete a different (or the same) run in `out` and start over.
+    pub force: bool,
+    /// `(index, count)`, index in `0..count`.
+    pub shard: (u64, u64),
+    /// Worker threads (all cores when `None`).
+    pub threads: Option<usize>,
+}
+
+/// What a run did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunOutcome {
+    pub parts_written: u64,
+    pub parts_skipped: u64,
+    pub trials_run: u64,
+    /// Every part of the run (all shards) is on disk.
+    pub complete: bool,
+}
+
+/// Why a run could not proceed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RunError {
+    /// The output folder cannot be used as asked (bad input: exit code 2).
+    #[error("{path}: {problem}")]
+    Output { path: PathBuf, problem: String },
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error(transparent)]
+    Parquet(#[from] ParquetIoError),
+    #[error("cannot start worker threads: {0}")]
+    Threads(String),
+}
+
+fn now() -> String {
+    humantime::format_rfc3339_seconds(SystemTime::now()).to_string()
+}
+
+/// Path of part `p` under `dir/sub`.
+pub fn part_path(dir: &Path, sub: &str, p: u64) -> PathBuf {
+    dir.join(sub).join(format!("part-{p:06}.parquet"))
+}
+
+fn run_json(cfg: &McConfig, config_path: &Path, started: &str, finished: Option<&str>) -> serde_json::Value {
+    serde_json::json!({
+        "gfcal_version": env!("CARGO_PKG_VERSION"),
+        "git_commit": env!("GFCAL_GIT_COMMIT"),
+        "name": cfg.name,
+        "config_path": config_path.display().to_string(),
+        "config_text": cfg.text,
+        "seed": cfg.seed,
+        "cells": cfg.cells.len(),
+        "factor_keys": cfg.factor_keys,
+        "trials_per_cell": cfg.trials_per_cell,
+        "trials_total": cfg.total_trials(),
+        "trials_per_part": cfg.trials_per_part,
+        "parts_total": cfg.parts(),
+        "started": started,
+        "finished": finished,
+    })
+}
+
+fn io_err(path: &Path) -> impl Fn(std::io::Error) -> RunError + '_ {
+    move |source| RunError::Io { path: path.to_path_buf(), source }
+}
+
+/// Checks and prepares the output folder; returns the run's start time.
+fn prepare_output(cfg: &McConfig, config_path: &Path, opts: &RunOptions) -> Result<String, RunError> {
+    let dir = &opts.out;
+    let run_file = dir.join("run.json");
+    let output = |problem: String| RunError::Output { path: dir.clone(), problem };
+    let sharded = opts.shard.1 > 1;
+    if run_file.exists() {
+        let text = std::fs::read_to_string(&run_file).map_err(io_err(&run_file))?;
+        let previous: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| output(format!("run.json is not readable ({e}); use --force to start over")))?;
+        let same = previous["config_text"].as_str() == Some(cfg.text.as_str());
+        if opts.force {
+            clear(dir)?;
+        } else if !same {
+            return Err(output(format!(
+                "holds a different run (`{}`, config {}); use another --out, or --force to replace it",
+                previous["name"].as_str().unwrap_or("?"),
+                previous["config_path"].as_str().unwrap_or("?")
+            )));
+        } else if !(opts.resume || sharded) {
+            return Err(output("holds this run already; use --resume to finish it or --force to start over".into()));
+        } else {
+            return Ok(previous["started"].as_str().map(String::from).unwrap_or_else(now));
+        }
+    } else if dir.join("trials").exists() || dir.join("parameters").exists() {
+        if opts.force {
+            clear(dir)?;
+        } else {
+            return Err(output(
+                "holds results without a run.json; use another --out, or --force to replace them".into(),
+            ));
+        }
+    }
+    for sub in ["trials", "parameters"] {
+        std::fs::create_dir_all(dir.join(sub)).map_err(io_err(dir))?;
+    }
+    let started = now();
+    let body = serde_json::to_string_pretty(&run_json(cfg, config_path, &started, None)).unwrap_or_default() + "\n";
+    crate::io::write_atomic(&run_file, body.as_bytes()).map_err(io_err(&run_file))?;
+    Ok(started)
+}
+
+fn clear(dir: &Path) -> Result<(), RunError> {
+    for sub in ["trials", "parameters"] {
+        let p = dir.join(sub);
+        if p.exists() {
+            std::fs::remove_dir_all(&p).map_err(io_err(&p))?;
+        }
+    }
+    for f in ["run.json", "summary.csv"] {
+        let p = dir.join(f);
+        if p.exists() {
+            std::fs::remove_file(&p).map_err(io_err(&p))?;
+        }
+    }
+    Ok(())
+}
+
+/// Removes temporary files left by an interrupted writer (not while other shards may write).
+fn remove_stale_temporaries(dir: &Path) {
+    for sub in ["trials", "parameters"] {
+        if let Ok(entries) = std::fs::read_dir(dir.join(sub)) {
+            for e in entries.flatten() {
+                let name = e.file_name().to_string_lossy().into_owned();
+                if name.starts_with(".part-") && name.contains(".tmp.") {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
+    }
+}
+
+/// Runs the parts of this shard that are not on disk yet.
+pub fn run(
+    cfg: &McConfig,
+    config_path: &Path,
+    opts: &RunOptions,
+    observer: &dyn Observer,
+) -> Result<RunOutcome, RunError> {
+    let (shard, shards) = opts.shard;
+    let started = prepare_output(cfg, config_path, opts)?;
+    if shards <= 1 {
+        remove_stale_temporaries(&opts.out);
+    }
+    let parts: Vec<u64> = (0..cfg.parts()).filter(|p| p % shards == shard).collect();
+    let part_trials = |p: u64| (p * cfg.trials_per_part)..((p + 1) * cfg.trials_per_part).min(cfg.total_trials());
+    let done = |p: u64| part_path(&opts.out, "trials", p).exists() && part_path(&opts.out, "parameters", p).exists();
+    let todo: Vec<u64> = parts.iter().copied().filter(|&p| !done(p)).collect();
+    let total: u64 = parts.iter().map(|&p| part_trials(p).end - part_trials(p).start).sum();
+    let already: u64 = parts.iter().filter(|&&p| done(p)).map(|&p| part_trials(p).end - part_trials(p).start).sum();
+    let prepared: Vec<Prepared> = cfg.cells.iter().map(Prepared::new).collect();
+    let mut builder = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = opts.threads {
+        builder = builder.num_threads(t);
+    }
+    let pool = builder.build().map_err(|e| RunError::Threads(e.to_string()))?;
+    observer.start(total, already);
+    let mut trials_run = 0;
+    for &p in &todo {
+        let range = part_trials(p);
+        let part_started = now();
+        let records: Vec<TrialRecord> = pool.install(|| {
+            range
+                .clone()
+                .into_par_iter()
+                .map(|t| {
+                    let cell = (t / cfg.trials_per_cell) as usize;
+                    let r = run_trial(&cfg.cells[cell], &prepared[cell], cfg.seed, t);
+                    observer.advance(1);
+                    r
+                })
+                .collect()
+        });
+        trials_run += records.len() as u64;
+        let metadata = vec![
+            ("gfcal:version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+            ("gfcal:git_commit".to_string(), env!("GFCAL_GIT_COMMIT").to_string()),
+            ("gfcal:config".to_string(), cfg.text.clone()),
+            ("gfcal:seed".to_string(), cfg.seed.to_string()),
+            ("gfcal:run_started".to_string(), started.clone()),
+            ("gfcal:part".to_string(), p.to_string()),
+            ("gfcal:trials".to_string(), format!("{}..{}", range.start, range.end)),
+            ("gfcal:part_started".to_string(), part_started),
+            ("gfcal:part_finished".to_string(), now()),
+        ];
+        write_part(&part_path(&opts.out, "parameters", p), &parameters_batch(cfg, &records)?, &metadata)?;
+        write_part(&part_path(&opts.out, "trials", p), &trials_batch(cfg, &records)?, &metadata)?;
+    }
+    observer.finish();
+    let complete = (0..cfg.parts()).all(done);
+    if complete {
+        let run_file = opts.out.join("run.json");
+        let body = serde_json::to_string_pretty(&run_json(cfg, config_path, &started, Some(&now())))
+            .unwrap_or_default()
+            + "\n";
+        crate::io::write_atomic(&run_file, body.as_bytes()).map_err(io_err(&run_file))?;
+    }
+    Ok(RunOutcome {
+        parts_written: todo.len() as u64,
+        parts_skipped: (parts.len() - todo.len()) as u64,
+        trials_run,
+        complete,
+    })
+}

@@ -1,0 +1,254 @@
+//! The summary of a run, computed from its Parquet files part by part (memory flat whatever the
+//! trial count): per cell and parameter the bias, RMSE, Cramer-Rao sigma, their ratio and the
+//! coverage of the estimator's 95% interval; per cell and drift column the median and 95th
+//! percentile (from a log-spaced histogram, 500 bins per decade: within 0.5%). A diverged
+//! navigation (+inf) counts as larger than any value; a missing one (NaN: no estimate) is left out.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use arrow_array::{Array, Float64Array, RecordBatch, StringArray, UInt32Array};
+
+use crate::io::parquet::{ParquetIoError, read_batches};
+
+/// Statistics of one parameter in one cell, SI.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ParameterSummary {
+    pub cell: u32,
+    pub name: String,
+    pub unit: String,
+    /// Trials with a finite error.
+    pub n: u64,
+    pub bias: f64,
+    pub rmse: f64,
+    /// Root-mean-square Cramer-Rao sigma over the trials.
+    pub crb_sigma: f64,
+    /// `rmse / crb_sigma`.
+    pub ratio: f64,
+    /// Fraction of trials with `|error| <= 1.96 estimated_sigma`.
+    pub coverage_95: f64,
+}
+
+/// Distribution of one drift column in one cell.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DriftSummary {
+    pub cell: u32,
+    pub column: String,
+    pub unit: String,
+    /// Trials with a value (finite or diverged).
+    pub n: u64,
+    /// Trials whose navigation diverged (+inf) by this horizon.
+    pub diverged: u64,
+    pub median: f64,
+    pub p95: f64,
+}
+
+#[derive(Debug, Clone, Default)]
+pub struct Summary {
+    pub trials: u64,
+    pub parameters: Vec<ParameterSummary>,
+    pub drift: Vec<DriftSummary>,
+}
+
+#[derive(Default)]
+struct Acc {
+    unit: String,
+    n: u64,
+    sum: f64,
+    sum2: f64,
+    crb2: f64,
+    n_crb: u64,
+    covered: u64,
+    n_cov: u64,
+}
+
+const BINS_PER_DECADE: f64 = 500.0;
+const LOG_MIN: f64 = -20.0;
+const DECADES: usize = 30;
+
+/// Log-spaced histogram of non-negative values.
+struct Histogram {
+    unit: String,
+    zeros: u64,
+    infinite: u64,
+    counts: Vec<u32>,
+    n: u64,
+}
+
+impl Histogram {
+    fn new(unit: String) -> Self {
+        Self { unit, zeros: 0, infinite: 0, counts: vec![0; DECADES * BINS_PER_DECADE as usize], n: 0 }
+    }
+    fn add(&mut self, v: f64) {
+        if v.is_nan() {
+            return;
+        }
+        self.n += 1;
+        if v.is_infinite() {
+            self.infinite += 1;
+            return;
+        }
+        let v = v.abs();
+        if v == 0.0 {
+            self.zeros += 1;
+            return;
+        }
+        let b = ((v.log10() - LOG_MIN) * BINS_PER_DECADE).floor().clamp(0.0, (self.counts.len() - 1) as f64) as usize;
+        self.counts[b] = self.counts[b].saturating_add(1);
+    }
+    fn quantile(&self, q: f64) -> f64 {
+        if self.n == 0 {
+            return f64::NAN;
+        }
+        let target = (q * self.n as f64).ceil().max(1.0) as u64;
+        if self.zeros >= target {
+            return 0.0;
+        }
+        let mut cum = self.zeros;
+        for (b, c) in self.counts.iter().enumerate() {
+            cum += *c as u64;
+            if cum >= target {
+                return 10f64.powf(LOG_MIN + (b as f64 + 0.5) / BINS_PER_DECADE);
+            }
+        }
+        f64::INFINITY
+    }
+}
+
+fn column<'a, T: 'static>(batch: &'a RecordBatch, name: &str, path: &Path) -> Result<&'a T, ParquetIoError> {
+    batch.column_by_name(name).and_then(|c| c.as_any().downcast_ref::<T>()).ok_or_else(|| ParquetIoError::Format {
+        path: path.display().to_string(),
+        message: format!("column `{name}` missing or mistyped"),
+    })
+}
+
+fn parts(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .map(|d| d.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "parquet")).collect())
+        .unwrap_or_default();
+    files.sort();
+    files
+}
+
+/// Reads every part of `dir/trials` and `dir/parameters`.
+pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
+    let mut params: BTreeMap<(u32, String), Acc> = BTreeMap::new();
+    let mut order: Vec<(u32, String)> = Vec::new();
+    for file in parts(&dir.join("parameters")) {
+        for batch in read_batches(&file)? {
+            let cell = column::<UInt32Array>(&batch, "cell", &file)?;
+            let name = column::<StringArray>(&batch, "name", &file)?;
+            let unit = column::<StringArray>(&batch, "unit", &file)?;
+            let err = column::<Float64Array>(&batch, "error", &file)?;
+            let crb = column::<Float64Array>(&batch, "crb_sigma", &file)?;
+            let es = column::<Float64Array>(&batch, "estimated_sigma", &file)?;
+            for i in 0..batch.num_rows() {
+                let key = (cell.value(i), name.value(i).to_string());
+                let a = params.entry(key.clone()).or_insert_with(|| {
+                    order.push(key);
+                    Acc { unit: unit.value(i).to_string(), ..Acc::default() }
+                });
+                let e = err.value(i);
+                if e.is_finite() {
+                    a.n += 1;
+                    a.sum += e;
+                    a.sum2 += e * e;
+                    let s = es.value(i);
+                    if s.is_finite() {
+                        a.n_cov += 1;
+                        if e.abs() <= 1.96 * s {
+                            a.covered += 1;
+                        }
+                    }
+                }
+                let c = crb.value(i);
+                if c.is_finite() {
+                    a.n_crb += 1;
+                    a.crb2 += c * c;
+                }
+            }
+        }
+    }
+    let mut hist: BTreeMap<(u32, String), Histogram> = BTreeMap::new();
+    let mut drift_order: Vec<(u32, String)> = Vec::new();
+    let mut trials = 0;
+    for file in parts(&dir.join("trials")) {
+        for batch in read_batches(&file)? {
+            trials += batch.num_rows() as u64;
+            let cell = column::<UInt32Array>(&batch, "cell", &file)?;
+            let schema = batch.schema();
+            for (k, f) in schema.fields().iter().enumerate() {
+                if !f.name().contains("_err_") || !f.name().ends_with('s') || !f.name().contains("_at_") {
+                    continue;
+                }
+                let Some(values) = batch.column(k).as_any().downcast_ref::<Float64Array>() else { continue };
+                for i in 0..batch.num_rows() {
+                    let key = (cell.value(i), f.name().clone());
+                    hist.entry(key.clone())
+                        .or_insert_with(|| {
+                            drift_order.push(key);
+                            Histogram::new(f.metadata().get("unit").cloned().unwrap_or_default())
+                        })
+                        .add(values.value(i));
+                }
+            }
+        }
+    }
+    order.sort_by_key(|k| k.0);
+    drift_order.sort_by_key(|k| k.0);
+    let parameters = order
+        .iter()
+        .map(|k| {
+            let a = &params[k];
+            let n = a.n.max(1) as f64;
+            let rmse = (a.sum2 / n).sqrt();
+            let crb = (a.crb2 / a.n_crb.max(1) as f64).sqrt();
+            ParameterSummary {
+                cell: k.0,
+                name: k.1.clone(),
+                unit: a.unit.clone(),
+                n: a.n,
+                bias: if a.n > 0 { a.sum / n } else { f64::NAN },
+                rmse: if a.n > 0 { rmse } else { f64::NAN },
+                crb_sigma: if a.n_crb > 0 { crb } else { f64::NAN },
+                ratio: if a.n > 0 && crb > 0.0 { rmse / crb } else { f64::NAN },
+                coverage_95: if a.n_cov > 0 { a.covered as f64 / a.n_cov as f64 } else { f64::NAN },
+            }
+        })
+        .collect();
+    let drift = drift_order
+        .iter()
+        .map(|k| {
+            let h = &hist[k];
+            DriftSummary {
+                cell: k.0,
+                column: k.1.clone(),
+                unit: h.unit.clone(),
+                n: h.n,
+                diverged: h.infinite,
+                median: h.quantile(0.5),
+                p95: h.quantile(0.95),
+            }
+        })
+        .collect();
+    Ok(Summary { trials, parameters, drift })
+}
+
+/// The summary as one CSV table (`table` is `parameter` or `drift`; empty fields where a
+/// statistic does not apply).
+pub fn summary_csv(s: &Summary) -> String {
+    let mut out = String::from("table,cell,name,unit,n,bias,rmse,crb_sigma,ratio,coverage_95,diverged,median,p95\n");
+    for p in &s.parameters {
+        out.push_str(&format!(
+            "parameter,{},{},{},{},{:e},{:e},{:e},{:e},{:e},,,\n",
+            p.cell, p.name, p.unit, p.n, p.bias, p.rmse, p.crb_sigma, p.ratio, p.coverage_95
+        ));
+    }
+    for d in &s.drift {
+        out.push_str(&format!(
+            "drift,{},{},{},{},,,,,,{},{:e},{:e}\n",
+            d.cell, d.column, d.unit, d.n, d.diverged, d.median, d.p95
+        ));
+    }
+    out
+}

@@ -1,0 +1,164 @@
+//! One Monte Carlo trial: draw a true error set, simulate the calibration, estimate, compute the
+//! Cramer-Rao sigmas, and navigate with each compensation.
+
+use nalgebra::{DMatrix, DVector, Vector3};
+
+use super::config::{Cell, Compensation};
+use crate::calib::estimate::CalibError;
+use crate::calib::fisher::fisher_information;
+use crate::calib::joint::{check_identifiable, estimate_unchecked};
+use crate::calib::measure::simulate;
+use crate::calib::params::PER_ACCEL;
+use crate::calib::{Estimate, paper};
+use crate::config::calibration::Estimator;
+use crate::nav::navigate;
+use crate::rng::trial_rng;
+use crate::sensor::noise::NoiseGenerator;
+use crate::sensor::{ArrayParams, Compensator, SimulatedArray};
+
+/// Salt of the navigation-noise streams: trial `i` navigates with `trial_rng(seed ^ NAV_SALT, i)`,
+/// the same realisation for every compensation.
+pub const NAV_SALT: u64 = 0x6e61_765f_6e6f_6973;
+
+/// The drift metrics recorded at each horizon, with their units.
+pub const DRIFT_METRICS: [(&str, &str); 4] =
+    [("rate_err_rad_s", "rad/s"), ("attitude_err_rad", "rad"), ("velocity_err_m_s", "m/s"), ("position_err_m", "m")];
+
+/// What a trial produced.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrialRecord {
+    pub trial: u64,
+    pub cell: u32,
+    pub converged: bool,
+    pub iterations: u32,
+    pub cost: f64,
+    pub condition_number: f64,
+    pub residual_sigma_m_s2: f64,
+    pub message: String,
+    /// Compensation-major, then horizon, then metric (see [`DRIFT_METRICS`]).
+    pub drift: Vec<f64>,
+    /// Per parameter, in the layout's order, SI.
+    pub truth: Vec<f64>,
+    pub estimated: Vec<f64>,
+    pub crb_sigma: Vec<f64>,
+    pub estimated_sigma: Vec<f64>,
+}
+
+/// Per-cell work done once before its trials.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    nominal: ArrayParams,
+    /// Why no trial of this cell can be estimated (an unidentifiable schedule), if so.
+    refusal: Option<String>,
+    white_sigma_m_s2: f64,
+}
+
+impl Prepared {
+    pub fn new(cell: &Cell) -> Self {
+        let nominal = ArrayParams::nominal_with_scale_factors(&cell.array, &cell.errors.nominal_scale_factor);
+        let refusal = check_identifiable(&cell.layout, &cell.schedule, &nominal, cell.calibration.gravity_m_s2)
+            .err()
+            .map(|e| e.to_string());
+        let rate = cell.schedule.steps()[0].sample_rate_hz;
+        Self { nominal, refusal, white_sigma_m_s2: cell.noise.white.sigma_m_s2(rate) }
+    }
+}
+
+fn crb_sigma(cell: &Cell, x: &DVector<f64>, sigma_m_s2: f64) -> Vec<f64> {
+    let p = cell.layout.len();
+    if sigma_m_s2 <= 0.0 {
+        return vec![0.0; p];
+    }
+    let fim = fisher_information(&cell.layout, x, &cell.schedule, cell.calibration.gravity_m_s2, sigma_m_s2);
+    let mut out = vec![f64::INFINITY; p];
+    for j in 0..cell.array.len() {
+        let o = PER_ACCEL * j;
+        let block: DMatrix<f64> = fim.view((o, o), (PER_ACCEL, PER_ACCEL)).clone_owned();
+        if let Some(inv) = block.try_inverse() {
+            for a in 0..PER_ACCEL {
+                out[o + a] = inv[(a, a)].max(0.0).sqrt();
+            }
+        }
+    }
+    out
+}
+
+/// Runs trial `trial` of `cell` under master seed `seed`.
+pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> TrialRecord {
+    let layout = &cell.layout;
+    let g = cell.calibration.gravity_m_s2;
+    let p = layout.len();
+    let mut rng = trial_rng(seed, trial);
+    let x_true = cell.errors.sample(layout, &mut rng);
+    let truth = layout.unpack(&x_true);
+    let meas = simulate(&cell.array, &truth, &cell.schedule, &cell.noise, g, &mut rng);
+    let estimate: Result<Estimate, String> = match &prepared.refusal {
+        Some(why) => Err(why.clone()),
+        None => match cell.calibration.estimator {
+            Estimator::Joint => {
+                estimate_unchecked(layout, &cell.schedule, &meas, &prepared.nominal, cell.calibration.start, g)
+            }
+            Estimator::Paper => paper::estimate(layout, &cell.schedule, &meas, g),
+        }
+        .map_err(|e: CalibError| e.to_string()),
+    };
+    let nan = vec![f64::NAN; p];
+    let (estimated, estimated_sigma, status) = match &estimate {
+        Ok(e) => (e.x.iter().copied().collect(), e.sigma().iter().copied().collect(), Some(e)),
+        Err(_) => (nan.clone(), nan.clone(), None),
+    };
+    let nav = &cell.navigation;
+    let gravity_i = Vector3::new(0.0, 0.0, -g);
+    let mut drift = Vec::with_capacity(nav.compensations.len() * nav.horizons_s.len() * DRIFT_METRICS.len());
+    for comp in &nav.compensations {
+        let params = match comp {
+            Compensation::Nominal => Some(&prepared.nominal),
+            Compensation::True => Some(&truth),
+            Compensation::Estimated => status.filter(|e| e.status.converged).map(|e| &e.params),
+        };
+        let samples = params.and_then(|params| {
+            let mut compensator = Compensator::new(&cell.array, params).ok()?;
+            let mut source = SimulatedArray::new(&cell.array, &truth, &nav.trajectory, gravity_i);
+            if nav.noise && !cell.noise.is_zero() {
+                let mut nav_rng = trial_rng(seed ^ NAV_SALT, trial);
+                let generator = NoiseGenerator::new(&cell.noise, cell.array.len(), 1.0 / nav.step_s, &mut nav_rng);
+                source = source.with_noise(generator, nav_rng, cell.noise.quantization_m_s2);
+            }
+            Some(navigate(&nav.trajectory, &mut source, &mut compensator, &gravity_i, nav.step_s, &nav.horizons_s))
+        });
+        match samples {
+            Some(samples) => {
+                for d in samples {
+                    drift.extend([d.rate_err_rad_s, d.attitude_err_rad, d.velocity_err_m_s, d.position_err_m]);
+                }
+            }
+            None => drift.extend(std::iter::repeat_n(f64::NAN, nav.horizons_s.len() * DRIFT_METRICS.len())),
+        }
+    }
+    let (converged, iterations, cost, condition_number, residual_sigma_m_s2, message) = match &estimate {
+        Ok(e) => (
+            e.status.converged,
+            e.status.iterations as u32,
+            e.status.cost,
+            e.status.condition_number,
+            e.residual_sigma_m_s2,
+            e.status.message.clone(),
+        ),
+        Err(why) => (false, 0, f64::NAN, f64::NAN, f64::NAN, why.clone()),
+    };
+    TrialRecord {
+        trial,
+        cell: cell.index as u32,
+        converged,
+        iterations,
+        cost,
+        condition_number,
+        residual_sigma_m_s2,
+        message,
+        drift,
+        truth: x_true.iter().copied().collect(),
+        estimated,
+        crb_sigma: crb_sigma(cell, &x_true, prepared.white_sigma_m_s2),
+        estimated_sigma,
+    }
+}

@@ -1,0 +1,164 @@
+//! The binary's `run` and `summarize` commands (part of the `gfcal` binary).
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::Context;
+
+use crate::InputError;
+use crate::progress::Progress;
+use gfcal::mc::runner::RunError;
+use gfcal::mc::summary::{Summary, summarize as summarize_dir, summary_csv};
+use gfcal::mc::{McConfig, RunOptions};
+
+/// `I/N` from the flag, else from Slurm's array variables, else `0/1`.
+fn shard(flag: Option<&str>) -> Result<(u64, u64), InputError> {
+    let parse = |i: &str, n: &str, what: &str| -> Result<(u64, u64), InputError> {
+        let bad = || InputError::Other(format!("{what}: expected I/N with 0 <= I < N, got `{i}/{n}`"));
+        let i: u64 = i.trim().parse().map_err(|_| bad())?;
+        let n: u64 = n.trim().parse().map_err(|_| bad())?;
+        if n == 0 || i >= n { Err(bad()) } else { Ok((i, n)) }
+    };
+    if let Some(f) = flag {
+        let (i, n) = f.split_once('/').ok_or_else(|| InputError::Other(format!("--shard: expected I/N, got `{f}`")))?;
+        return parse(i, n, "--shard");
+    }
+    match (std::env::var("SLURM_ARRAY_TASK_ID"), std::env::var("SLURM_ARRAY_TASK_COUNT")) {
+        (Ok(id), Ok(count)) => {
+            let min: i64 = std::env::var("SLURM_ARRAY_TASK_MIN").ok().and_then(|m| m.parse().ok()).unwrap_or(0);
+            let id: i64 = id
+                .trim()
+                .parse()
+                .map_err(|_| InputError::Other(format!("SLURM_ARRAY_TASK_ID is not a number: `{id}`")))?;
+            parse(
+                &(id - min).to_string(),
+                &count,
+                "SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN / SLURM_ARRAY_TASK_COUNT",
+            )
+        }
+        _ => Ok((0, 1)),
+    }
+}
+
+pub fn run(
+    config: &Path,
+    out: Option<PathBuf>,
+    resume: bool,
+    force: bool,
+    shard_flag: Option<&str>,
+    threads: Option<usize>,
+    interval_s: f64,
+) -> anyhow::Result<()> {
+    let cfg = McConfig::load(config).map_err(InputError::Config)?;
+    let shard = shard(shard_flag)?;
+    if threads == Some(0) {
+        return Err(InputError::Other("--threads must be at least 1".into()).into());
+    }
+    if !(interval_s.is_finite() && interval_s > 0.0) {
+        return Err(InputError::Other(format!("--progress-interval-s must be positive, got {interval_s}")).into());
+    }
+    let out = out.unwrap_or_else(|| PathBuf::from("results").join(&cfg.name));
+    let opts = RunOptions { out: out.clone(), resume, force, shard, threads };
+    eprintln!(
+        "gfcal: run `{}`: {} cell(s) x {} trials = {} trials in {} parts; shard {}/{}; output {}",
+        cfg.name,
+        cfg.cells.len(),
+        cfg.trials_per_cell,
+        cfg.total_trials(),
+        cfg.parts(),
+        shard.0,
+        shard.1,
+        out.display()
+    );
+    let progress = Progress::new(Duration::from_secs_f64(interval_s));
+    let outcome = gfcal::mc::run(&cfg, config, &opts, &progress).map_err(|e| match e {
+        RunError::Output { .. } => anyhow::Error::new(InputError::Other(e.to_string())),
+        other => anyhow::Error::new(other),
+    })?;
+    eprintln!(
+        "gfcal: {} trials run, {} parts written, {} already done{}",
+        outcome.trials_run,
+        outcome.parts_written,
+        outcome.parts_skipped,
+        if outcome.complete { "" } else { "; other shards' parts are still missing" }
+    );
+    let summary = summarize_dir(&out).context("cannot summarize the run")?;
+    write_summary(&out, &summary)?;
+    print_summary(&cfg, &summary, outcome.complete);
+    Ok(())
+}
+
+pub fn summarize(dir: &Path) -> anyhow::Result<()> {
+    let run_file = dir.join("run.json");
+    let text = std::fs::read_to_string(&run_file).map_err(|e| {
+        InputError::Other(format!("{}: cannot read ({e}); is this a gfcal run folder?", run_file.display()))
+    })?;
+    let run: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| InputError::Other(format!("{}: {e}", run_file.display())))?;
+    let config_text = run["config_text"].as_str().unwrap_or_default().to_string();
+    let origin = PathBuf::from(run["config_path"].as_str().unwrap_or("run.json"));
+    let cfg = McConfig::from_text(config_text, &origin).map_err(InputError::Config)?;
+    let summary = summarize_dir(dir).context("cannot summarize the run")?;
+    write_summary(dir, &summary)?;
+    print_summary(&cfg, &summary, summary.trials == cfg.total_trials());
+    Ok(())
+}
+
+fn write_summary(dir: &Path, summary: &Summary) -> anyhow::Result<()> {
+    let path = dir.join("summary.csv");
+    gfcal::io::write_atomic(&path, summary_csv(summary).as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
+fn print_summary(cfg: &McConfig, s: &Summary, complete: bool) {
+    use gfcal::io::csv::significant as sig;
+    println!(
+        "Summary of {} trials{} (summary.csv; SI units)",
+        s.trials,
+        if complete { "" } else { ", partial: the run is not complete" }
+    );
+    for cell in &cfg.cells {
+        let factors: Vec<String> = cell
+            .factors
+            .iter()
+            .map(|(k, v)| match v {
+                gfcal::mc::config::FactorValue::Number(x) => format!("{k} = {}", sig(*x, 4)),
+                gfcal::mc::config::FactorValue::Text(t) => format!("{k} = {t}"),
+            })
+            .collect();
+        println!(
+            "\ncell {}{}",
+            cell.index,
+            if factors.is_empty() { String::new() } else { format!(": {}", factors.join(", ")) }
+        );
+        println!(
+            "  {:<16} {:>6} {:>7} {:>12} {:>12} {:>12} {:>7} {:>9}",
+            "parameter", "unit", "n", "bias", "rmse", "crb_sigma", "ratio", "coverage"
+        );
+        for p in s.parameters.iter().filter(|p| p.cell == cell.index as u32) {
+            println!(
+                "  {:<16} {:>6} {:>7} {:>12} {:>12} {:>12} {:>7.3} {:>9.3}",
+                p.name,
+                p.unit,
+                p.n,
+                sig(p.bias, 4),
+                sig(p.rmse, 4),
+                sig(p.crb_sigma, 4),
+                p.ratio,
+                p.coverage_95
+            );
+        }
+        println!("  {:<44} {:>7} {:>7} {:>9} {:>12} {:>12}", "drift", "unit", "n", "diverged", "median", "p95");
+        for d in s.drift.iter().filter(|d| d.cell == cell.index as u32) {
+            println!(
+                "  {:<44} {:>7} {:>7} {:>9} {:>12} {:>12}",
+                d.column,
+                d.unit,
+                d.n,
+                d.diverged,
+                sig(d.median, 4),
+                sig(d.p95, 4)
+            );
+        }
+    }
+}
