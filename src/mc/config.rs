@@ -458,7 +458,7 @@ fn dist<T: Clone>(
             forbid("half_width", e.half_width.is_some(), "normal")?;
             forbid("value", e.value.is_some(), "normal")?;
             let sigma = e.sigma.ok_or_else(|| Bad::new(k("sigma"), "is required for dist = \"normal\""))?;
-            if !(finite(&k("sigma"), sigma)? >= 0.0) {
+            if finite(&k("sigma"), sigma)? < 0.0 {
                 return Err(Bad::new(k("sigma"), format!("must not be negative, got {sigma}")));
             }
             Ok(Dist::Normal { mean, sigma: sigma * to_si })
@@ -467,7 +467,7 @@ fn dist<T: Clone>(
             forbid("sigma", e.sigma.is_some(), "uniform")?;
             forbid("value", e.value.is_some(), "uniform")?;
             let hw = e.half_width.ok_or_else(|| Bad::new(k("half_width"), "is required for dist = \"uniform\""))?;
-            if !(finite(&k("half_width"), hw)? >= 0.0) {
+            if finite(&k("half_width"), hw)? < 0.0 {
                 return Err(Bad::new(k("half_width"), format!("must not be negative, got {hw}")));
             }
             Ok(Dist::Uniform { mean, half_width: hw * to_si })

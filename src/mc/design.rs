@@ -11,8 +11,8 @@ pub fn latin_hypercube<R: Rng + ?Sized>(points: usize, dims: usize, rng: &mut R)
     for d in 0..dims {
         let mut strata: Vec<usize> = (0..points).collect();
         strata.shuffle(rng);
-        for (p, s) in strata.iter().enumerate() {
-            out[p][d] = (*s as f64 + rng.random::<f64>()) / points as f64;
+        for (row, s) in out.iter_mut().zip(&strata) {
+            row[d] = (*s as f64 + rng.random::<f64>()) / points as f64;
         }
     }
     out
