@@ -3,6 +3,7 @@
 mod calibration;
 mod cli;
 mod common;
+mod mc;
 mod mechanization;
 mod misalignment;
 mod navigation;

@@ -1,0 +1,339 @@
+//! The batch engine: reproducible across threads and shards, resumable after a kill, every shipped
+//! config valid, bad input refused with nothing written.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use arrow_array::RecordBatch;
+use gfcal::io::parquet::{read_batches, read_metadata};
+use gfcal::mc::{McConfig, RunOptions, Silent, run};
+
+/// A small sweep: two noise levels x two schedules, a short navigation.
+const SMALL: &str = r#"
+name = "small"
+seed = 7
+trials_per_cell = 30
+
+[errors]
+nominal_scale_factor = [0.5, 2.5, 0.5, 2.5, 2.5, 2.5]
+bias_mg = { dist = "normal", sigma = 1.0 }
+scale_factor_ppm = { dist = "uniform", half_width = 300.0 }
+misalignment_deg = { dist = "normal", sigma = 0.5 }
+location_mm = { dist = "normal", sigma = 1.0 }
+
+[noise]
+white_density_ug_per_sqrt_hz = 50.0
+
+[schedule]
+preset = "hung_lee_2006"
+step_duration_s = 0.5
+sample_rate_hz = 100.0
+
+[trajectory]
+kind = "paper_manoeuvre"
+
+[navigation]
+step_s = 0.02
+horizons_s = [0.5, 1.0]
+compensations = ["nominal", "estimated", "true"]
+noise = true
+
+[output]
+trials_per_part = 16
+
+[sweep]
+design = "factorial"
+[[sweep.factor]]
+key = "noise.white_density_ug_per_sqrt_hz"
+levels = [20.0, 80.0]
+[[sweep.factor]]
+key = "schedule.preset"
+levels = ["hung_lee_2006", "hung_lee_2006_augmented"]
+"#;
+
+fn write_config(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn opts(out: &Path, threads: usize, shard: (u64, u64)) -> RunOptions {
+    RunOptions { out: out.to_path_buf(), resume: false, force: false, shard, threads: Some(threads) }
+}
+
+/// All batches of `dir/sub`, part by part, in part order.
+fn table(dir: &Path, sub: &str) -> Vec<(String, Vec<RecordBatch>)> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir.join(sub)).unwrap().flatten().map(|e| e.path()).collect();
+    files.retain(|p| p.extension().is_some_and(|e| e == "parquet"));
+    files.sort();
+    files.iter().map(|f| (f.file_name().unwrap().to_string_lossy().into_owned(), read_batches(f).unwrap())).collect()
+}
+
+fn same_tables(a: &Path, b: &Path) {
+    for sub in ["trials", "parameters"] {
+        let (ta, tb) = (table(a, sub), table(b, sub));
+        assert_eq!(ta.len(), tb.len(), "{sub}: part count");
+        for ((na, ba), (nb, bb)) in ta.iter().zip(&tb) {
+            assert_eq!(na, nb);
+            assert_eq!(ba, bb, "{sub}/{na} differs");
+        }
+    }
+}
+
+#[test]
+fn same_tables_on_1_and_2_threads_and_in_3_shards() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg_path = write_config(dir.path(), "small.toml", SMALL);
+    let cfg = McConfig::load(&cfg_path).unwrap();
+    assert_eq!(cfg.cells.len(), 4);
+    assert_eq!(cfg.parts(), 8); // 120 trials, 16 per part
+    let one = dir.path().join("one");
+    let two = dir.path().join("two");
+    let sharded = dir.path().join("sharded");
+    let o = run(&cfg, &cfg_path, &opts(&one, 1, (0, 1)), &Silent).unwrap();
+    assert!(o.complete && o.trials_run == 120);
+    run(&cfg, &cfg_path, &opts(&two, 2, (0, 1)), &Silent).unwrap();
+    same_tables(&one, &two);
+    for i in 0..3 {
+        let o = run(&cfg, &cfg_path, &opts(&sharded, 2, (i, 3)), &Silent).unwrap();
+        assert_eq!(o.complete, i == 2, "complete only when the last shard is done");
+    }
+    same_tables(&one, &sharded);
+    // Rows, columns and provenance.
+    let trials = table(&one, "trials");
+    let rows: usize = trials.iter().flat_map(|(_, b)| b.iter().map(|b| b.num_rows())).sum();
+    assert_eq!(rows, 120);
+    let schema = trials[0].1[0].schema();
+    for col in [
+        "trial_id",
+        "noise.white_density_ug_per_sqrt_hz",
+        "schedule.preset",
+        "converged",
+        "true_velocity_err_m_s_at_1s",
+    ] {
+        assert!(schema.field_with_name(col).is_ok(), "{col}");
+    }
+    assert_eq!(schema.field_with_name("estimated_position_err_m_at_0.5s").unwrap().metadata()["unit"], "m");
+    let params = table(&one, "parameters");
+    let prow: usize = params.iter().flat_map(|(_, b)| b.iter().map(|b| b.num_rows())).sum();
+    assert_eq!(prow, 120 * 42);
+    let meta = read_metadata(&one.join("trials/part-000000.parquet")).unwrap();
+    assert_eq!(meta["gfcal:seed"], "7");
+    assert_eq!(meta["gfcal:config"], SMALL);
+    assert!(meta.contains_key("gfcal:git_commit") && meta.contains_key("gfcal:part_finished"));
+    let run_json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(one.join("run.json")).unwrap()).unwrap();
+    assert_eq!(run_json["trials_total"], 120);
+    assert!(run_json["finished"].is_string());
+}
+
+#[test]
+fn summary_matches_the_parameters_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg_path = write_config(dir.path(), "small.toml", SMALL);
+    let cfg = McConfig::load(&cfg_path).unwrap();
+    let out = dir.path().join("out");
+    run(&cfg, &cfg_path, &opts(&out, 2, (0, 1)), &Silent).unwrap();
+    let s = gfcal::mc::summary::summarize(&out).unwrap();
+    assert_eq!(s.trials, 120);
+    assert_eq!(s.parameters.len(), 4 * 42);
+    // Recompute one RMSE by hand from the Parquet rows.
+    let mut errs = Vec::new();
+    for (_, batches) in table(&out, "parameters") {
+        for b in batches {
+            let cell = b.column_by_name("cell").unwrap().as_any().downcast_ref::<arrow_array::UInt32Array>().unwrap();
+            let name = b.column_by_name("name").unwrap().as_any().downcast_ref::<arrow_array::StringArray>().unwrap();
+            let err = b.column_by_name("error").unwrap().as_any().downcast_ref::<arrow_array::Float64Array>().unwrap();
+            for i in 0..b.num_rows() {
+                if cell.value(i) == 1 && name.value(i) == "a3.beta_yx" {
+                    errs.push(err.value(i));
+                }
+            }
+        }
+    }
+    assert_eq!(errs.len(), 30);
+    let rmse = (errs.iter().map(|e| e * e).sum::<f64>() / 30.0).sqrt();
+    let row = s.parameters.iter().find(|p| p.cell == 1 && p.name == "a3.beta_yx").unwrap();
+    assert!((row.rmse / rmse - 1.0).abs() < 1e-12);
+    assert!(row.ratio > 0.5 && row.ratio < 2.0, "{row:?}");
+    let d = s.drift.iter().find(|d| d.cell == 0 && d.column == "nominal_rate_err_rad_s_at_1s").unwrap();
+    assert_eq!(d.n, 30);
+    assert!(d.median > 0.0 && d.p95 >= d.median);
+}
+
+fn gfcal() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_gfcal"));
+    c.current_dir(env!("CARGO_MANIFEST_DIR"));
+    c
+}
+
+/// A run long enough to be killed part-way: 3000 trials in parts of 100.
+fn long_config() -> String {
+    SMALL
+        .replace("trials_per_cell = 30", "trials_per_cell = 750")
+        .replace("trials_per_part = 16", "trials_per_part = 100")
+}
+
+#[test]
+fn killed_run_resumes_to_the_uninterrupted_result() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg_path = write_config(dir.path(), "long.toml", &long_config());
+    let out = dir.path().join("killed");
+    let mut child = gfcal()
+        .args(["run", cfg_path.to_str().unwrap(), "--out", out.to_str().unwrap()])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while !out.join("trials/part-000002.parquet").exists() && t0.elapsed() < Duration::from_secs(120) {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    // Every part file on disk reads; none is half-written.
+    let parts = table(&out, "trials");
+    assert!(!parts.is_empty() && parts.len() < 30, "killed part-way: {} parts", parts.len());
+    let _ = table(&out, "parameters");
+    // Without --resume the folder is refused; with it, only missing parts run.
+    let again = gfcal().args(["run", cfg_path.to_str().unwrap(), "--out", out.to_str().unwrap()]).output().unwrap();
+    assert_eq!(again.status.code(), Some(2), "{}", String::from_utf8_lossy(&again.stderr));
+    assert!(String::from_utf8_lossy(&again.stderr).contains("--resume"));
+    let resumed =
+        gfcal().args(["run", cfg_path.to_str().unwrap(), "--out", out.to_str().unwrap(), "--resume"]).output().unwrap();
+    assert!(resumed.status.success(), "{}", String::from_utf8_lossy(&resumed.stderr));
+    assert!(String::from_utf8_lossy(&resumed.stderr).contains("already done"));
+    // Equal to an uninterrupted run.
+    let cfg = McConfig::load(&cfg_path).unwrap();
+    let clean = dir.path().join("clean");
+    run(&cfg, &cfg_path, &opts(&clean, 2, (0, 1)), &Silent).unwrap();
+    same_tables(&clean, &out);
+    // No temporary file is left behind.
+    for sub in ["trials", "parameters"] {
+        let left: Vec<_> = std::fs::read_dir(out.join(sub))
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().contains(".tmp."))
+            .collect();
+        assert!(left.is_empty(), "{left:?}");
+    }
+}
+
+#[test]
+fn every_config_in_configs_parses_and_validates() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+    let mut checked = 0;
+    for entry in std::fs::read_dir(&root).unwrap().flatten() {
+        let path = entry.path();
+        if path.extension().is_none_or(|e| e != "toml") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let table: toml::Table = toml::from_str(&text).unwrap();
+        if table.contains_key("trials_per_cell") {
+            let cfg = McConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+            assert!(cfg.total_trials() > 0);
+        } else if table.contains_key("schedule") {
+            gfcal::config::calibration::CalibrationConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        } else {
+            gfcal::config::drift::DriftConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        }
+        checked += 1;
+    }
+    for entry in std::fs::read_dir(root.join("arrays")).unwrap().flatten() {
+        gfcal::config::array::load_array_file(&entry.path()).unwrap_or_else(|e| panic!("{e}"));
+        checked += 1;
+    }
+    assert!(checked >= 8, "{checked} configs");
+    for name in ["quickstart", "hung_lee_2006", "identifiability_sweep", "overnight"] {
+        assert!(root.join(format!("{name}.toml")).exists(), "configs/{name}.toml");
+    }
+    let overnight = McConfig::load(&root.join("overnight.toml")).unwrap();
+    assert!(overnight.total_trials() >= 1_000_000);
+}
+
+/// Runs `gfcal run` on a config text; expects exit 2, the words, and nothing written.
+fn run_refused(text: &str, words: &[&str]) {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(dir.path(), "bad.toml", text);
+    let out = dir.path().join("out");
+    let o = gfcal().args(["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    for w in words {
+        assert!(err.contains(w), "mentions `{w}`: {err}");
+    }
+    assert!(!out.exists(), "nothing written");
+}
+
+#[test]
+fn bad_run_configs_are_refused_before_anything_is_written() {
+    run_refused(&SMALL.replace("seed = 7", "seed = 7\nsede = 8"), &["bad.toml", "sede", "unknown field"]);
+    run_refused(
+        &SMALL.replace("bias_mg = { dist = \"normal\", sigma = 1.0 }", "bias_mg = { dist = \"normal\", sigma = -1.0 }"),
+        &["errors.bias_mg.sigma", "negative"],
+    );
+    run_refused(&SMALL.replace("levels = [20.0, 80.0]", "levels = []"), &["sweep.factor[0].levels", "empty"]);
+    let no_factors = SMALL.split("[[sweep.factor]]").next().unwrap().to_string();
+    run_refused(&no_factors, &["sweep.factor", "at least one"]);
+    run_refused(
+        &SMALL.replace("levels = [20.0, 80.0]", "levels = [20.0, -80.0]"),
+        &["noise.white_density_ug_per_sqrt_hz", "negative", "sweep cell"],
+    );
+    run_refused(&SMALL.replace("key = \"schedule.preset\"", "key = \"schedule.presett\""), &["presett", "sweep cell"]);
+    run_refused(&SMALL.replace("trials_per_cell = 30", "trials_per_cell = 0"), &["trials_per_cell"]);
+    run_refused(&SMALL.replace("horizons_s = [0.5, 1.0]", "horizons_s = []"), &["navigation.horizons_s"]);
+}
+
+#[test]
+fn an_output_folder_with_another_run_is_refused_unless_forced() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = write_config(dir.path(), "a.toml", SMALL);
+    let b = write_config(dir.path(), "b.toml", &SMALL.replace("seed = 7", "seed = 8"));
+    let out = dir.path().join("out");
+    let ok = gfcal().args(["run", a.to_str().unwrap(), "--out", out.to_str().unwrap()]).output().unwrap();
+    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    let before = std::fs::read_to_string(out.join("run.json")).unwrap();
+    for extra in [&[][..], &["--resume"][..]] {
+        let o =
+            gfcal().args(["run", b.to_str().unwrap(), "--out", out.to_str().unwrap()]).args(extra).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        assert!(err.contains("holds a different run") && err.contains(out.to_str().unwrap()), "{err}");
+    }
+    assert_eq!(std::fs::read_to_string(out.join("run.json")).unwrap(), before, "untouched");
+    let forced =
+        gfcal().args(["run", b.to_str().unwrap(), "--out", out.to_str().unwrap(), "--force"]).output().unwrap();
+    assert!(forced.status.success());
+    let meta = read_metadata(&out.join("trials/part-000000.parquet")).unwrap();
+    assert_eq!(meta["gfcal:seed"], "8");
+}
+
+#[test]
+fn shard_flag_and_slurm_variables() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(dir.path(), "small.toml", SMALL);
+    let out = dir.path().join("out");
+    let bad = gfcal()
+        .args(["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap(), "--shard", "3/3"])
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(!out.exists());
+    // Slurm: tasks 1..=2 of an array starting at 1 -> shards 0/2 and 1/2.
+    for id in ["1", "2"] {
+        let o = gfcal()
+            .args(["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()])
+            .env("SLURM_ARRAY_TASK_ID", id)
+            .env("SLURM_ARRAY_TASK_MIN", "1")
+            .env("SLURM_ARRAY_TASK_COUNT", "2")
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let clean = dir.path().join("clean");
+    let cfgv = McConfig::load(&cfg).unwrap();
+    run(&cfgv, &cfg, &opts(&clean, 2, (0, 1)), &Silent).unwrap();
+    same_tables(&clean, &out);
+}
