@@ -171,11 +171,38 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
     }
     let mut hist: BTreeMap<(u32, String), Histogram> = BTreeMap::new();
     let mut drift_order: Vec<(u32, String)> = Vec::new();
+    let mut drift = Vec::new();
     let mut trials = 0;
+    // Parts hold trials in order and cells are contiguous runs of trials: once a file starts past
+    // a cell, that cell's histograms are final and are reduced to their quantiles, so memory
+    // holds at most the cells of one part whatever the number of cells.
+    let finalize = |hist: &mut BTreeMap<(u32, String), Histogram>,
+                    order: &mut Vec<(u32, String)>,
+                    below: u32,
+                    out: &mut Vec<DriftSummary>| {
+        let (done, keep): (Vec<_>, Vec<_>) = order.drain(..).partition(|k| k.0 < below);
+        *order = keep;
+        for k in done {
+            if let Some(h) = hist.remove(&k) {
+                out.push(DriftSummary {
+                    cell: k.0,
+                    column: k.1,
+                    unit: h.unit.clone(),
+                    n: h.n,
+                    diverged: h.infinite,
+                    median: h.quantile(0.5),
+                    p95: h.quantile(0.95),
+                });
+            }
+        }
+    };
     for file in parts(&dir.join("trials")) {
         for batch in read_batches(&file)? {
             trials += batch.num_rows() as u64;
             let cell = column::<UInt32Array>(&batch, "cell", &file)?;
+            if let Some(first) = cell.iter().flatten().min() {
+                finalize(&mut hist, &mut drift_order, first, &mut drift);
+            }
             let schema = batch.schema();
             for (k, f) in schema.fields().iter().enumerate() {
                 if !f.name().contains("_err_") || !f.name().ends_with('s') || !f.name().contains("_at_") {
@@ -194,8 +221,9 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
             }
         }
     }
+    finalize(&mut hist, &mut drift_order, u32::MAX, &mut drift);
     order.sort_by_key(|k| k.0);
-    drift_order.sort_by_key(|k| k.0);
+    drift.sort_by_key(|d| d.cell);
     let parameters = order
         .iter()
         .map(|k| {
@@ -213,21 +241,6 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
                 crb_sigma: if a.n_crb > 0 { crb } else { f64::NAN },
                 ratio: if a.n > 0 && crb > 0.0 { rmse / crb } else { f64::NAN },
                 coverage_95: if a.n_cov > 0 { a.covered as f64 / a.n_cov as f64 } else { f64::NAN },
-            }
-        })
-        .collect();
-    let drift = drift_order
-        .iter()
-        .map(|k| {
-            let h = &hist[k];
-            DriftSummary {
-                cell: k.0,
-                column: k.1.clone(),
-                unit: h.unit.clone(),
-                n: h.n,
-                diverged: h.infinite,
-                median: h.quantile(0.5),
-                p95: h.quantile(0.95),
             }
         })
         .collect();

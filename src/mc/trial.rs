@@ -64,7 +64,8 @@ impl Prepared {
     }
 }
 
-fn crb_sigma(cell: &Cell, x: &DVector<f64>, sigma_m_s2: f64) -> Vec<f64> {
+/// Cramer-Rao sigma of every parameter of `cell` at `x` (per-accelerometer blocks), SI.
+pub fn crb_sigma(cell: &Cell, x: &DVector<f64>, sigma_m_s2: f64) -> Vec<f64> {
     let p = cell.layout.len();
     if sigma_m_s2 <= 0.0 {
         return vec![0.0; p];
