@@ -13,6 +13,8 @@
 //! [errors]
 //! nominal_scale_factor = 1.0      # one, or one per accelerometer
 //! bias_mg = { dist = "normal", sigma = 1.0 }                   # mean defaults to 0
+//! # mean, sigma, half_width and value: one for every accelerometer, or one per accelerometer:
+//! # location_mm = { dist = "normal", sigma = [1.0, 1.0, 2.0, 1.0, 1.0, 1.0] }
 //! scale_factor_ppm = { dist = "uniform", half_width = 500.0 }  # deviation from nominal
 //! misalignment_deg = { dist = "normal", sigma = 0.5 }          # the two angles of the form
 //! location_mm = { dist = "fixed", value = [[0.5, 0.8, 0.6], ...] }
@@ -75,9 +77,9 @@ pub enum DistKind {
 #[serde(deny_unknown_fields, bound(deserialize = "T: serde::de::DeserializeOwned"))]
 pub struct DistEntry<T> {
     pub dist: DistKind,
-    pub mean: Option<f64>,
-    pub sigma: Option<f64>,
-    pub half_width: Option<f64>,
+    pub mean: Option<OneOrEach<f64>>,
+    pub sigma: Option<OneOrEach<f64>>,
+    pub half_width: Option<OneOrEach<f64>>,
     pub value: Option<OneOrEach<T>>,
 }
 
@@ -449,7 +451,23 @@ fn dist<T: Clone>(
 ) -> Result<Dist, Bad> {
     let Some(e) = entry else { return Ok(Dist::Fixed(vec![vec![0.0; width]; n])) };
     let k = |s: &str| format!("errors.{key}.{s}");
-    let mean = finite(&k("mean"), e.mean.unwrap_or(0.0))? * to_si;
+    // One value, or one per accelerometer; finite, and not negative where `non_negative`.
+    let per_accel = |name: &str, v: &Option<OneOrEach<f64>>, non_negative: bool| -> Result<Vec<f64>, Bad> {
+        let values = v.clone().unwrap_or(OneOrEach::One(0.0)).expand(&k(name), n)?;
+        values
+            .iter()
+            .enumerate()
+            .map(|(j, x)| {
+                let key = if matches!(v, Some(OneOrEach::Each(_))) { format!("{}[{j}]", k(name)) } else { k(name) };
+                let x = finite(&key, *x)?;
+                if non_negative && x < 0.0 {
+                    return Err(Bad::new(key, format!("must not be negative, got {x}")));
+                }
+                Ok(x * to_si)
+            })
+            .collect()
+    };
+    let mean = per_accel("mean", &e.mean, false)?;
     let forbid = |name: &str, given: bool, kind: &str| {
         if given { Err(Bad::new(k(name), format!("does not apply to dist = \"{kind}\""))) } else { Ok(()) }
     };
@@ -457,20 +475,18 @@ fn dist<T: Clone>(
         DistKind::Normal => {
             forbid("half_width", e.half_width.is_some(), "normal")?;
             forbid("value", e.value.is_some(), "normal")?;
-            let sigma = e.sigma.ok_or_else(|| Bad::new(k("sigma"), "is required for dist = \"normal\""))?;
-            if finite(&k("sigma"), sigma)? < 0.0 {
-                return Err(Bad::new(k("sigma"), format!("must not be negative, got {sigma}")));
+            if e.sigma.is_none() {
+                return Err(Bad::new(k("sigma"), "is required for dist = \"normal\""));
             }
-            Ok(Dist::Normal { mean, sigma: sigma * to_si })
+            Ok(Dist::Normal { mean, sigma: per_accel("sigma", &e.sigma, true)? })
         }
         DistKind::Uniform => {
             forbid("sigma", e.sigma.is_some(), "uniform")?;
             forbid("value", e.value.is_some(), "uniform")?;
-            let hw = e.half_width.ok_or_else(|| Bad::new(k("half_width"), "is required for dist = \"uniform\""))?;
-            if finite(&k("half_width"), hw)? < 0.0 {
-                return Err(Bad::new(k("half_width"), format!("must not be negative, got {hw}")));
+            if e.half_width.is_none() {
+                return Err(Bad::new(k("half_width"), "is required for dist = \"uniform\""));
             }
-            Ok(Dist::Uniform { mean, half_width: hw * to_si })
+            Ok(Dist::Uniform { mean, half_width: per_accel("half_width", &e.half_width, true)? })
         }
         DistKind::Fixed => {
             for (name, given) in

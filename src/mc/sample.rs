@@ -3,7 +3,8 @@
 //! Each kind of parameter has a distribution in display units: bias in mg, scale factor as a
 //! deviation from the nominal in ppm, misalignment in deg (the two angles of the configured form),
 //! location error in mm (each axis). `normal` (mean, sigma), `uniform` (mean +- half_width) or
-//! `fixed` (one value, or one per accelerometer).
+//! `fixed` (value); each of mean, sigma, half_width and value is one number for every
+//! accelerometer or one per accelerometer.
 
 use nalgebra::DVector;
 use rand::Rng;
@@ -11,16 +12,17 @@ use rand_distr::{Distribution, Normal, Uniform};
 
 use crate::calib::params::{Layout, PER_ACCEL};
 
-/// A distribution of one kind of parameter, SI.
+/// A distribution of one kind of parameter, SI; `mean`, `sigma` and `half_width` hold one value
+/// per accelerometer.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Dist {
     Normal {
-        mean: f64,
-        sigma: f64,
+        mean: Vec<f64>,
+        sigma: Vec<f64>,
     },
     Uniform {
-        mean: f64,
-        half_width: f64,
+        mean: Vec<f64>,
+        half_width: Vec<f64>,
     },
     /// Values per accelerometer and component (row j: its components).
     Fixed(Vec<Vec<f64>>),
@@ -30,28 +32,22 @@ impl Dist {
     fn draw<R: Rng + ?Sized>(&self, rng: &mut R, j: usize, c: usize) -> f64 {
         match self {
             Dist::Normal { mean, sigma } => {
-                if *sigma > 0.0 {
-                    Normal::new(*mean, *sigma).map(|d| d.sample(rng)).unwrap_or(*mean)
-                } else {
-                    *mean
-                }
+                let (m, s) = (mean[j], sigma[j]);
+                if s > 0.0 { Normal::new(m, s).map(|d| d.sample(rng)).unwrap_or(m) } else { m }
             }
             Dist::Uniform { mean, half_width } => {
-                if *half_width > 0.0 {
-                    Uniform::new(mean - half_width, mean + half_width).map(|d| d.sample(rng)).unwrap_or(*mean)
-                } else {
-                    *mean
-                }
+                let (m, h) = (mean[j], half_width[j]);
+                if h > 0.0 { Uniform::new(m - h, m + h).map(|d| d.sample(rng)).unwrap_or(m) } else { m }
             }
             Dist::Fixed(v) => v[j][c],
         }
     }
 
-    /// Standard deviation (0 for fixed values), SI.
-    pub fn sigma(&self) -> f64 {
+    /// Standard deviation for accelerometer `j` (0 for fixed values), SI.
+    pub fn sigma(&self, j: usize) -> f64 {
         match self {
-            Dist::Normal { sigma, .. } => *sigma,
-            Dist::Uniform { half_width, .. } => half_width / 3f64.sqrt(),
+            Dist::Normal { sigma, .. } => sigma[j],
+            Dist::Uniform { half_width, .. } => half_width[j] / 3f64.sqrt(),
             Dist::Fixed(_) => 0.0,
         }
     }

@@ -337,3 +337,84 @@ fn shard_flag_and_slurm_variables() {
     run(&cfgv, &cfg, &opts(&clean, 2, (0, 1)), &Silent).unwrap();
     same_tables(&clean, &out);
 }
+
+#[test]
+fn distributions_take_one_value_or_one_per_accelerometer() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = SMALL.replace(
+        "location_mm = { dist = \"normal\", sigma = 1.0 }",
+        "location_mm = { dist = \"normal\", mean = [0, 0, 5, 0, 0, 0], sigma = [0, 0, 0, 0, 0, 2.0] }",
+    );
+    let cfg = McConfig::load(&write_config(dir.path(), "d.toml", &text)).unwrap();
+    let cell = &cfg.cells[0];
+    let mut rng = gfcal::rng::trial_rng(1, 0);
+    let (mut a6, mut n) = (0.0, 0.0);
+    for _ in 0..2000 {
+        let x = cell.errors.sample(&cell.layout, &mut rng);
+        let loc = |j: usize, c: usize| x[7 * j + 4 + c];
+        assert_eq!(loc(2, 1), 5e-3, "fixed mean 5 mm, sigma 0 on accelerometer 3");
+        assert_eq!(loc(0, 0), 0.0);
+        a6 += loc(5, 2).powi(2);
+        n += 1.0;
+    }
+    let sd = (a6 / n).sqrt();
+    assert!((sd / 2e-3 - 1.0).abs() < 0.08, "accelerometer 6 sd {sd}");
+    let bad = SMALL.replace("sigma = 1.0 }\nscale", "sigma = [1.0, 1.0] }\nscale");
+    let err = McConfig::load(&write_config(dir.path(), "e.toml", &bad)).unwrap_err().to_string();
+    assert!(err.contains("errors.bias_mg.sigma") && err.contains("one value per accelerometer (6), got 2"), "{err}");
+    let neg = SMALL.replace("half_width = 300.0", "half_width = [300, 300, -1, 300, 300, 300]");
+    let err = McConfig::load(&write_config(dir.path(), "f.toml", &neg)).unwrap_err().to_string();
+    assert!(err.contains("errors.scale_factor_ppm.half_width[2]") && err.contains("negative"), "{err}");
+}
+
+#[test]
+fn space_filling_designs_cover_their_ranges() {
+    use gfcal::mc::design::{factorial, latin_hypercube, sobol};
+    // Latin hypercube: every stratum of every dimension holds exactly one point.
+    let pts = latin_hypercube(50, 3, &mut gfcal::rng::trial_rng(3, 0));
+    for d in 0..3 {
+        let mut strata: Vec<usize> = pts.iter().map(|p| (p[d] * 50.0).floor() as usize).collect();
+        strata.sort_unstable();
+        assert_eq!(strata, (0..50).collect::<Vec<_>>());
+    }
+    // Sobol: in range, and a 2^k prefix is stratified in each dimension (a (0, m, s)-net property).
+    let s = sobol(64, 2, 9);
+    for d in 0..2 {
+        let mut strata: Vec<usize> = s.iter().map(|p| (p[d] * 64.0).floor() as usize).collect();
+        strata.sort_unstable();
+        assert_eq!(strata, (0..64).collect::<Vec<_>>());
+    }
+    assert_eq!(factorial(&[2, 3]).len(), 6);
+    // A config with a log-scale Latin hypercube: every cell's value within [low, high].
+    let dir = tempfile::tempdir().unwrap();
+    let text = SMALL.split("[sweep]").next().unwrap().to_string()
+        + "[sweep]\ndesign = \"sobol\"\npoints = 8\n[[sweep.factor]]\nkey = \"errors.location_mm.sigma\"\nlow = 0.1\nhigh = 3.0\nscale = \"log\"\n[[sweep.factor]]\nkey = \"schedule.preset\"\nlevels = [\"hung_lee_2006\", \"hung_lee_2006_augmented\"]\n";
+    let cfg = McConfig::load(&write_config(dir.path(), "s.toml", &text)).unwrap();
+    assert_eq!(cfg.cells.len(), 16);
+    for c in &cfg.cells {
+        let gfcal::mc::config::FactorValue::Number(v) = c.factors[0].1 else { panic!() };
+        assert!((0.1..=3.0).contains(&v), "{v}");
+        let gfcal::mc::sample::Dist::Normal { sigma, .. } = &c.errors.location_m else { panic!() };
+        assert!((sigma[0] - v * 1e-3).abs() < 1e-15);
+    }
+}
+
+#[test]
+fn progress_lines_when_stderr_is_not_a_terminal() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(dir.path(), "small.toml", SMALL);
+    let out = dir.path().join("out");
+    let o = gfcal()
+        .args(["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap(), "--progress-interval-s", "0.000001"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("trials in this run, 0 already done"), "{err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.contains("trials/s") && l.contains("ETA")).collect();
+    assert!(lines.len() >= 2, "{err}");
+    assert!(lines.last().unwrap().starts_with("gfcal: 120/120 trials (100.0%)"), "{err}");
+    // The summary is printed and written.
+    assert!(String::from_utf8_lossy(&o.stdout).starts_with("Summary of 120 trials"));
+    assert!(out.join("summary.csv").exists());
+}
