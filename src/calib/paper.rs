@@ -20,7 +20,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Vector3, Vector4};
 
 use super::estimate::{CalibError, Estimate, FitStatus, check_shape};
 use super::measure::Measurements;
-use super::params::Layout;
+use super::params::{Layout, StepMotion};
 use super::schedule::Schedule;
 use crate::sensor::params::{ArrayParams, SensorParams};
 
@@ -64,15 +64,13 @@ fn location_fit(
     let mut ata = Matrix3::zeros();
     let mut atb = Vector3::zeros();
     for &s in spins {
-        let step = &schedule.steps()[s];
-        let w = step.omega_b_rad_s();
-        let big_w = w * w.transpose() - Matrix3::identity() * w.norm_squared();
+        let motion = StepMotion::new(&schedule.steps()[s], g_m_s2);
         let a = sensor.axis;
         let y = meas.steps[s].mean[j] / sensor.scale_factor
             - sensor.bias_m_s2
-            - a.dot(&(step.up_b() * g_m_s2))
-            - a.dot(&(big_w * r_nominal_m));
-        let row = big_w * a;
+            - a.dot(&motion.gravity_up_m_s2)
+            - a.dot(&(motion.w2 * r_nominal_m));
+        let row = motion.w2 * a;
         let n = meas.steps[s].samples as f64;
         ata += row * row.transpose() * n;
         atb += row * (y * n);
