@@ -243,3 +243,32 @@ pub fn paper(out: &Path, trials: usize, seed: u64, density_ug: f64) -> anyhow::R
     );
     Ok(())
 }
+
+pub fn simulate_log(config: &Path, out: &Path) -> anyhow::Result<()> {
+    use gfcal::config::simulate_log::SimulateLogConfig;
+    use gfcal::discrepancy::simulate::LogSimulation;
+    let cfg = SimulateLogConfig::load(config).map_err(InputError::Config)?;
+    let sim = LogSimulation {
+        array: &cfg.array,
+        truth: &cfg.errors.truth,
+        schedule: &cfg.schedule,
+        noise: cfg.noise,
+        effects: &cfg.effects,
+        temperature: cfg.temperature,
+        g_m_s2: cfg.gravity_m_s2,
+    };
+    sim.check().map_err(|e| InputError::Other(format!("{}: key `effects`: {e}", config.display())))?;
+    let log = sim.run(&mut gfcal::rng::trial_rng(cfg.seed, 0));
+    log.write(out).with_context(|| format!("cannot write {}", out.display()))?;
+    let samples: usize = log.steps.iter().map(|s| s.samples()).sum();
+    let effects: Vec<&str> = cfg.effects.iter().map(|e| e.effect.name()).collect();
+    eprintln!(
+        "wrote {}: {} steps, {samples} samples of {} outputs{}; effects hidden: {}",
+        out.display(),
+        log.steps.len(),
+        log.n,
+        if log.has_temperature() { ", with temp_c" } else { "" },
+        if effects.is_empty() { "none".to_string() } else { effects.join(", ") }
+    );
+    Ok(())
+}

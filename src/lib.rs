@@ -14,6 +14,7 @@
 pub mod array;
 pub mod calib;
 pub mod config;
+pub mod discrepancy;
 pub mod io;
 pub mod mc;
 pub mod motion;

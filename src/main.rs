@@ -67,6 +67,15 @@ enum Command {
         #[arg(long, default_value_t = 10.0)]
         progress_interval_s: f64,
     },
+    /// Write a calibration log (CSV, or Parquet for a .parquet name) simulated from true
+    /// parameters, noise, a schedule and any effects of the library switched on.
+    SimulateLog {
+        /// Simulate-log config (TOML), e.g. configs/discrepancy_example.toml.
+        config: PathBuf,
+        /// The log to write (.csv or .parquet).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Recompute a run's summary (summary.csv) from its Parquet files.
     Summarize {
         /// The run's output folder.
@@ -128,6 +137,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             runs::run(&config, out, resume, force, shard.as_deref(), threads, progress_interval_s)
         }
         Command::Summarize { dir } => runs::summarize(&dir),
+        Command::SimulateLog { config, out } => commands::simulate_log(&config, &out),
         Command::Design { config } => commands::design(&config),
         Command::Paper { out, trials, seed, noise_density_ug_per_sqrt_hz } => {
             commands::paper(&out, trials, seed, noise_density_ug_per_sqrt_hz)

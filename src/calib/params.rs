@@ -19,7 +19,7 @@ use nalgebra::{DVector, Matrix3, Vector3};
 use super::schedule::Step;
 use crate::array::Array;
 use crate::sensor::misalignment::{
-    MisalignmentError, TriadAngles, tilt_angles, tilt_basis, to_triad_axes, to_unit_axes, triad_angles,
+    MisalignmentError, TriadAngles, tilt_angles, tilt_axis_with_derivatives, to_triad_axes, to_unit_axes, triad_angles,
 };
 use crate::sensor::params::{ArrayParams, SensorParams};
 use crate::units::{M_PER_MM, RAD_PER_DEG, STANDARD_GRAVITY_M_S2};
@@ -191,24 +191,7 @@ impl Layout {
     pub fn axis(&self, j: usize, m: [f64; 2]) -> (Vector3<f64>, [Vector3<f64>; 2]) {
         match &self.axes[j] {
             AxisModel::Triad { own, d, .. } => (own + d[0] * m[0] + d[1] * m[1], *d),
-            AxisModel::Tilt { theta } => {
-                let (u, w) = tilt_basis(theta);
-                let phi2 = m[0] * m[0] + m[1] * m[1];
-                let phi = phi2.sqrt();
-                // sinc(phi) = sin(phi)/phi and (d sinc/d phi)/phi, with series near 0.
-                let (sinc, dsinc_over_phi, sin_over_phi) = if phi < 1e-4 {
-                    (1.0 - phi2 / 6.0, -1.0 / 3.0 + phi2 / 30.0, 1.0 - phi2 / 6.0)
-                } else {
-                    let (s, c) = phi.sin_cos();
-                    (s / phi, (phi * c - s) / (phi2 * phi), s / phi)
-                };
-                let e = u * m[0] + w * m[1];
-                let a = theta * phi.cos() + e * sinc;
-                let da = |mi: f64, basis: &Vector3<f64>| {
-                    -theta * (sin_over_phi * mi) + e * (dsinc_over_phi * mi) + basis * sinc
-                };
-                (a, [da(m[0], &u), da(m[1], &w)])
-            }
+            AxisModel::Tilt { theta } => tilt_axis_with_derivatives(theta, &m),
         }
     }
 

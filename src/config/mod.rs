@@ -7,6 +7,7 @@ pub mod drift;
 pub mod errors;
 pub mod noise;
 pub mod schedule;
+pub mod simulate_log;
 pub mod trajectory;
 
 use std::path::{Path, PathBuf};

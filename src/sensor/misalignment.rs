@@ -120,6 +120,24 @@ pub fn tilt_axis(theta: &Vector3<f64>, t: &[f64; 2]) -> Vector3<f64> {
     theta * phi.cos() + (u * t[0] + w * t[1]) * (phi.sin() / phi)
 }
 
+/// The unit tilted axis and its derivatives by the two tilt angles (exact; a series near zero).
+pub fn tilt_axis_with_derivatives(theta: &Vector3<f64>, t: &[f64; 2]) -> (Vector3<f64>, [Vector3<f64>; 2]) {
+    let (u, w) = tilt_basis(theta);
+    let phi2 = t[0] * t[0] + t[1] * t[1];
+    let phi = phi2.sqrt();
+    // sinc(phi) = sin(phi)/phi and (d sinc/d phi)/phi.
+    let (sinc, dsinc_over_phi) = if phi < 1e-4 {
+        (1.0 - phi2 / 6.0, -1.0 / 3.0 + phi2 / 30.0)
+    } else {
+        let (s, c) = phi.sin_cos();
+        (s / phi, (phi * c - s) / (phi2 * phi))
+    };
+    let e = u * t[0] + w * t[1];
+    let a = theta * phi.cos() + e * sinc;
+    let da = |ti: f64, basis: &Vector3<f64>| -theta * (sinc * ti) + e * (dsinc_over_phi * ti) + basis * sinc;
+    (a, [da(t[0], &u), da(t[1], &w)])
+}
+
 /// Tilt angles (rad) of any non-zero true axis (its length is ignored) from nominal unit `theta`.
 pub fn tilt_angles(theta: &Vector3<f64>, axis: &Vector3<f64>) -> [f64; 2] {
     let (u, w) = tilt_basis(theta);

@@ -3,6 +3,7 @@
 mod calibration;
 mod cli;
 mod common;
+mod discrepancy;
 mod mc;
 mod mechanization;
 mod misalignment;

@@ -231,7 +231,9 @@ fn every_config_in_configs_parses_and_validates() {
         }
         let text = std::fs::read_to_string(&path).unwrap();
         let table: toml::Table = toml::from_str(&text).unwrap();
-        if table.contains_key("trials_per_cell") {
+        if table.contains_key("effects") || (table.contains_key("seed") && !table.contains_key("trials_per_cell")) {
+            gfcal::config::simulate_log::SimulateLogConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        } else if table.contains_key("trials_per_cell") {
             let cfg = McConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
             assert!(cfg.total_trials() > 0);
         } else if table.contains_key("schedule") {
