@@ -272,3 +272,152 @@ pub fn simulate_log(config: &Path, out: &Path) -> anyhow::Result<()> {
     );
     Ok(())
 }
+
+pub fn diagnose(
+    log_path: &Path,
+    array: Option<&Path>,
+    json: Option<&Path>,
+    alpha: f64,
+    temp_ref_c: f64,
+) -> anyhow::Result<()> {
+    use gfcal::discrepancy::diagnose::{DiagnoseError, DiagnoseSettings, Verdict, diagnose};
+    use gfcal::discrepancy::log::CalibrationLog;
+    if !(alpha > 0.0 && alpha < 1.0) {
+        return Err(InputError::Other(format!("--alpha must be between 0 and 1, got {alpha}")).into());
+    }
+    let array = match array {
+        Some(p) => gfcal::config::array::load_array_file(p).map_err(InputError::Config)?,
+        None => gfcal::array::Array::cube(0.1)?,
+    };
+    let log = CalibrationLog::read(log_path, array.len()).map_err(|e| InputError::Other(e.to_string()))?;
+    let nominal = gfcal::sensor::ArrayParams::nominal(&array);
+    let settings = DiagnoseSettings { alpha, temp_ref_c, ..DiagnoseSettings::default() };
+    let d = diagnose(&log, &array, &nominal, &settings).map_err(|e| match e {
+        DiagnoseError::TooShort { .. }
+        | DiagnoseError::Calib(_)
+        | DiagnoseError::Schedule(_)
+        | DiagnoseError::NoNoise => anyhow::Error::new(InputError::Other(format!("{}: {e}", log_path.display()))),
+        other => anyhow::Error::new(other),
+    })?;
+    let b = &d.baseline;
+    println!(
+        "log {}: {} steps, {} outputs{}; noise within steps {:.4} mg per sample",
+        log_path.display(),
+        log.steps.len(),
+        log.n,
+        if log.has_temperature() { ", temperature" } else { "" },
+        b.noise_sigma_m_s2 / gfcal::units::M_S2_PER_MG
+    );
+    println!(
+        "baseline fit: chi2/dof = {:.3} ({:.1} on {} dof, p = {:.2e}); held-out prediction error {:.3} (1 is noise alone)",
+        d.gap_before, b.chi2, b.dof, b.p_value, d.held_out_before
+    );
+    let n = log.n;
+    let per_step = |rows: &[Vec<f64>]| {
+        let mut s = format!("  {:>6} {:>7}", "step", "kind");
+        for j in 1..=n {
+            s.push_str(&format!(" {:>7}", format!("z_s{j}")));
+        }
+        s.push('\n');
+        for (st, z) in log.steps.iter().zip(rows) {
+            let kind = if st.omega_b_rad_s.norm() > 0.0 { "spin" } else { "static" };
+            s.push_str(&format!("  {:>6} {:>7}", st.step, kind));
+            for v in z {
+                s.push_str(&format!(" {v:>7.2}"));
+            }
+            s.push('\n');
+        }
+        s
+    };
+    println!("\nwhitened residuals of the step means, baseline (|z| > 3 is unusual):");
+    print!("{}", per_step(&b.whitened));
+    let by_kind = |kind_spin: bool| {
+        let z: Vec<f64> = log
+            .steps
+            .iter()
+            .zip(&b.whitened)
+            .filter(|(s, _)| (s.omega_b_rad_s.norm() > 0.0) == kind_spin)
+            .flat_map(|(_, z)| z.iter().copied())
+            .collect();
+        z.iter().map(|v| v * v).sum::<f64>() / z.len().max(1) as f64
+    };
+    println!("mean z^2 by step kind: static {:.2}, spin {:.2}", by_kind(false), by_kind(true));
+    println!("\neffects named:");
+    if d.findings.is_empty() {
+        println!("  none");
+    }
+    for f in &d.findings {
+        let acc = f.accelerometer.map(|j| format!(" on accelerometer {}", j + 1)).unwrap_or_default();
+        let vals: Vec<String> = f.value.iter().zip(&f.sigma).map(|(v, s)| format!("{v:.4e} +- {s:.1e}")).collect();
+        println!(
+            "  {}{acc}: {} {}; chi2/dof {:.3} -> {:.3} (p = {:.1e}){}",
+            f.name,
+            vals.join(", "),
+            f.unit,
+            f.gap_before,
+            f.gap_after,
+            f.p_value,
+            f.confounded_with
+                .as_ref()
+                .map(|c| format!("; CONFOUNDED with {c}: this log cannot tell them apart"))
+                .unwrap_or_default()
+        );
+    }
+    println!("\ncandidates the log cannot separate from the model:");
+    for (label, v) in &d.verdicts {
+        if let Verdict::ConfoundedWithModel(with) = v {
+            println!("  {label}: confounded with {}", with.join(", "));
+        }
+    }
+    println!(
+        "\nafter: chi2/dof = {:.3} (p = {:.2e}); held-out prediction error {:.3}",
+        d.gap_after, d.p_value_after, d.held_out_after
+    );
+    if d.unmodelled_effect_remains {
+        println!(
+            "an unmodelled effect remains: the gap is above the noise and no candidate of the library explains it"
+        );
+    }
+    if let Some(path) = json {
+        let verdict_json = |v: &Verdict| match v {
+            Verdict::ConfoundedWithModel(with) => serde_json::json!({"confounded_with_model": with}),
+            Verdict::ConfoundedWith(o) => serde_json::json!({"confounded_with": o}),
+            Verdict::Tested { delta_chi2, p_value } => {
+                serde_json::json!({"delta_chi2": delta_chi2, "p_value": p_value})
+            }
+        };
+        let body = serde_json::json!({
+            "log": log_path.display().to_string(),
+            "noise_sigma_m_s2": b.noise_sigma_m_s2,
+            "gap_before": d.gap_before,
+            "gap_after": d.gap_after,
+            "p_value_before": b.p_value,
+            "p_value_after": d.p_value_after,
+            "held_out_before": d.held_out_before,
+            "held_out_after": d.held_out_after,
+            "unmodelled_effect_remains": d.unmodelled_effect_remains,
+            "effects": d.findings.iter().map(|f| serde_json::json!({
+                "name": f.name,
+                "accelerometer": f.accelerometer.map(|j| j + 1),
+                "value": if f.value.len() == 1 { serde_json::json!(f.value[0]) } else { serde_json::json!(f.value) },
+                "sigma": if f.sigma.len() == 1 { serde_json::json!(f.sigma[0]) } else { serde_json::json!(f.sigma) },
+                "unit": f.unit,
+                "gap_before": f.gap_before,
+                "gap_after": f.gap_after,
+                "p_value": f.p_value,
+                "confounded_with": f.confounded_with,
+            })).collect::<Vec<_>>(),
+            "candidates": d.verdicts.iter().map(|(l, v)| serde_json::json!({"candidate": l, "verdict": verdict_json(v)})).collect::<Vec<_>>(),
+            "per_step": log.steps.iter().enumerate().map(|(i, s)| serde_json::json!({
+                "step": s.step,
+                "kind": if s.omega_b_rad_s.norm() > 0.0 { "spin" } else { "static" },
+                "whitened_before": b.whitened[i],
+                "whitened_after": d.per_step_after[i],
+            })).collect::<Vec<_>>(),
+        });
+        gfcal::io::write_atomic(path, (serde_json::to_string_pretty(&body)? + "\n").as_bytes())
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!("wrote {}", path.display());
+    }
+    Ok(())
+}

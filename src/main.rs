@@ -76,6 +76,24 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Fit the baseline model to a calibration log, find where it disagrees, and name the missing
+    /// effects (see README: the log format).
+    Diagnose {
+        /// The log (.csv or .parquet).
+        log: PathBuf,
+        /// Array file (TOML) [default: the paper's cube, rho = 0.1 m].
+        #[arg(long)]
+        array: Option<PathBuf>,
+        /// Also write the diagnosis as JSON.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Familywise significance level of the effect tests.
+        #[arg(long, default_value_t = 0.01)]
+        alpha: f64,
+        /// Reference temperature of the temperature effects, deg C.
+        #[arg(long, default_value_t = 25.0)]
+        reference_temp_c: f64,
+    },
     /// Recompute a run's summary (summary.csv) from its Parquet files.
     Summarize {
         /// The run's output folder.
@@ -138,6 +156,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Summarize { dir } => runs::summarize(&dir),
         Command::SimulateLog { config, out } => commands::simulate_log(&config, &out),
+        Command::Diagnose { log, array, json, alpha, reference_temp_c } => {
+            commands::diagnose(&log, array.as_deref(), json.as_deref(), alpha, reference_temp_c)
+        }
         Command::Design { config } => commands::design(&config),
         Command::Paper { out, trials, seed, noise_density_ug_per_sqrt_hz } => {
             commands::paper(&out, trials, seed, noise_density_ug_per_sqrt_hz)

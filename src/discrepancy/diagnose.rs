@@ -104,3 +104,581 @@ pub fn fit_baseline(
     let p_value = ChiSquared::new(dof as f64).map(|d| d.sf(chi2)).unwrap_or(f64::NAN);
     Ok(BaselineFit { estimate, noise_sigma_m_s2: sigma, whitened, chi2, dof, p_value })
 }
+
+// ---------------------------------------------------------------------------------------------
+// The extended model and the search for missing effects.
+
+use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
+use nalgebra::{DMatrix, DVector, Dyn, Owned};
+
+use super::effect::{Effect, SampleContext, Scope, library};
+use crate::calib::params::StepMotion;
+use crate::calib::schedule::Schedule;
+
+/// One candidate: an effect, and the accelerometer it belongs to (per-accelerometer effects are
+/// tested one accelerometer at a time).
+pub struct Candidate {
+    pub effect: Box<dyn Effect>,
+    pub accelerometer: Option<usize>,
+}
+
+impl Candidate {
+    pub fn label(&self) -> String {
+        match self.accelerometer {
+            Some(j) => format!("{} (accelerometer {})", self.effect.name(), j + 1),
+            None => self.effect.name().to_string(),
+        }
+    }
+}
+
+/// Step-level context of the log: means of time and temperature per step.
+struct StepInfo {
+    t_mean_s: f64,
+    temp_delta_c: f64,
+}
+
+/// The model of step means: baseline parameters plus the parameters of the included effects.
+struct Extended<'a> {
+    layout: &'a Layout,
+    schedule: &'a Schedule,
+    motions: Vec<StepMotion>,
+    info: Vec<StepInfo>,
+    meas: &'a Measurements,
+    effects: &'a [&'a Candidate],
+    /// Offsets of each effect's parameters after the baseline's.
+    offsets: Vec<usize>,
+    statics: usize,
+    spins: usize,
+    g_m_s2: f64,
+    /// Whitening: 1 / (k_j sigma / sqrt(n_s)), by step and accelerometer.
+    weight: Vec<Vec<f64>>,
+    x: DVector<f64>,
+}
+
+impl<'a> Extended<'a> {
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        layout: &'a Layout,
+        schedule: &'a Schedule,
+        log: &CalibrationLog,
+        meas: &'a Measurements,
+        effects: &'a [&'a Candidate],
+        x_baseline: &DVector<f64>,
+        sigma: f64,
+        temp_ref_c: f64,
+        g_m_s2: f64,
+    ) -> Self {
+        let statics = schedule.steps().iter().filter(|s| !s.is_spin()).count();
+        let spins = schedule.len() - statics;
+        let mut offsets = Vec::with_capacity(effects.len());
+        let mut p = layout.len();
+        for c in effects {
+            offsets.push(p);
+            p += c.effect.parameters(statics, spins);
+        }
+        let mut x = DVector::zeros(p);
+        x.rows_mut(0, layout.len()).copy_from(x_baseline);
+        let info = log
+            .steps
+            .iter()
+            .map(|s| StepInfo {
+                t_mean_s: s.t_s.iter().sum::<f64>() / s.samples() as f64,
+                temp_delta_c: if s.temp_c.is_empty() {
+                    0.0
+                } else {
+                    s.temp_c.iter().sum::<f64>() / s.samples() as f64 - temp_ref_c
+                },
+            })
+            .collect();
+        let weight = meas
+            .steps
+            .iter()
+            .map(|m| {
+                (0..layout.array().len())
+                    .map(|j| (m.samples as f64).sqrt() / (x_baseline[PER_ACCEL * j].abs() * sigma))
+                    .collect()
+            })
+            .collect();
+        Self {
+            layout,
+            schedule,
+            motions: schedule.steps().iter().map(|s| StepMotion::new(s, g_m_s2)).collect(),
+            info,
+            meas,
+            effects,
+            offsets,
+            statics,
+            spins,
+            g_m_s2,
+            weight,
+            x,
+        }
+    }
+
+    /// Whitened residuals of the step means, and (optionally) each effect's whitened regressors
+    /// `[effect parameter][row]` at the current parameters.
+    fn evaluate(&self, x: &DVector<f64>, mut regressors: Option<&mut Vec<Vec<f64>>>) -> DVector<f64> {
+        let n = self.layout.array().len();
+        let rows = self.schedule.len() * n;
+        let mut r = DVector::zeros(rows);
+        if let Some(reg) = regressors.as_deref_mut() {
+            *reg = vec![vec![0.0; rows]; x.len() - self.layout.len()];
+        }
+        let (mut static_index, mut spin_index) = (0, 0);
+        for (s, step) in self.schedule.steps().iter().enumerate() {
+            let motion = &self.motions[s];
+            for j in 0..n {
+                let o = PER_ACCEL * j;
+                let xj: [f64; PER_ACCEL] = std::array::from_fn(|a| x[o + a]);
+                let (k, b) = (xj[0], xj[1]);
+                let (axis, _) = self.layout.axis(j, [xj[2], xj[3]]);
+                let position =
+                    self.layout.array().accelerometers()[j].position_m + nalgebra::Vector3::new(xj[4], xj[5], xj[6]);
+                let u = axis.dot(&(motion.gravity_up_m_s2 + motion.w2 * position));
+                let ctx = SampleContext {
+                    step: s,
+                    static_index: (!step.is_spin()).then_some(static_index),
+                    spin_index: step.is_spin().then_some(spin_index),
+                    t_s: self.info[s].t_mean_s,
+                    temp_delta_c: self.info[s].temp_delta_c,
+                    u_m_s2: u,
+                    axis,
+                    position_m: position,
+                    up_b: step.up_b(),
+                    w2: motion.w2,
+                    g_m_s2: self.g_m_s2,
+                };
+                let mut e = 0.0;
+                for (c, &off) in self.effects.iter().zip(&self.offsets) {
+                    let m = c.effect.parameters(self.statics, self.spins);
+                    let applies = c.accelerometer.is_none_or(|a| a == j);
+                    let mut grad = vec![0.0; m];
+                    if applies {
+                        e += c.effect.term(&ctx, &x.as_slice()[off..off + m], &mut grad);
+                    }
+                    if let Some(reg) = regressors.as_deref_mut() {
+                        for (i, gv) in grad.iter().enumerate() {
+                            reg[off - self.layout.len() + i][s * n + j] = self.weight[s][j] * k * gv;
+                        }
+                    }
+                }
+                r[s * n + j] = self.weight[s][j] * (self.meas.steps[s].mean[j] - k * (b + u + e));
+            }
+            if step.is_spin() {
+                spin_index += 1;
+            } else {
+                static_index += 1;
+            }
+        }
+        r
+    }
+
+    /// Jacobian of the residuals: the effects' columns from their regressors (analytic), the
+    /// baseline's by central differences (steps on each parameter's scale), which also carry the
+    /// effects' dependence on the baseline parameters.
+    fn jacobian_at(&self, x: &DVector<f64>) -> DMatrix<f64> {
+        let rows = self.schedule.len() * self.layout.array().len();
+        let mut jm = DMatrix::zeros(rows, x.len());
+        let mut regs = Vec::new();
+        self.evaluate(x, Some(&mut regs));
+        for (k, reg) in regs.iter().enumerate() {
+            for (r, v) in reg.iter().enumerate() {
+                jm[(r, self.layout.len() + k)] = -v;
+            }
+        }
+        let mut xp = x.clone();
+        for i in 0..self.layout.len() {
+            let h = 1e-6 * [1.0, 1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-3][i % PER_ACCEL] * x[i].abs().clamp(1.0, 10.0);
+            xp[i] = x[i] + h;
+            let a = self.evaluate(&xp, None);
+            xp[i] = x[i] - h;
+            let b = self.evaluate(&xp, None);
+            xp[i] = x[i];
+            jm.set_column(i, &((a - b) / (2.0 * h)));
+        }
+        jm
+    }
+}
+
+impl LeastSquaresProblem<f64, Dyn, Dyn> for Extended<'_> {
+    type ResidualStorage = Owned<f64, Dyn>;
+    type JacobianStorage = Owned<f64, Dyn, Dyn>;
+    type ParameterStorage = Owned<f64, Dyn>;
+    fn set_params(&mut self, x: &DVector<f64>) {
+        self.x.copy_from(x);
+    }
+    fn params(&self) -> DVector<f64> {
+        self.x.clone()
+    }
+    fn residuals(&self) -> Option<DVector<f64>> {
+        let r = self.evaluate(&self.x, None);
+        r.iter().all(|v| v.is_finite()).then_some(r)
+    }
+    fn jacobian(&self) -> Option<DMatrix<f64>> {
+        let j = self.jacobian_at(&self.x);
+        j.iter().all(|v| v.is_finite()).then_some(j)
+    }
+}
+
+/// A fit of the baseline plus some effects.
+#[derive(Debug, Clone)]
+pub struct ExtendedFit {
+    pub x: DVector<f64>,
+    pub chi2: f64,
+    pub dof: usize,
+    pub covariance: DMatrix<f64>,
+    pub whitened: DVector<f64>,
+}
+
+/// The outcome of testing one candidate against the current model.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Verdict {
+    /// The log cannot separate it from the current model; what it is confounded with.
+    ConfoundedWithModel(Vec<String>),
+    /// It cannot be separated from another candidate.
+    ConfoundedWith(String),
+    /// Fitted: the fall in chi-square, its p-value, and the held-out gain.
+    Tested { delta_chi2: f64, p_value: f64 },
+}
+
+/// One named effect of a diagnosis.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Finding {
+    pub name: String,
+    pub accelerometer: Option<usize>,
+    /// Values and sigmas (SI), one per parameter.
+    pub value: Vec<f64>,
+    pub sigma: Vec<f64>,
+    pub unit: String,
+    pub gap_before: f64,
+    pub gap_after: f64,
+    pub p_value: f64,
+    /// Another candidate that explains the same gap equally well, if any.
+    pub confounded_with: Option<String>,
+}
+
+/// A whole diagnosis.
+#[derive(Debug, Clone)]
+pub struct Diagnosis {
+    pub baseline: BaselineFit,
+    pub findings: Vec<Finding>,
+    /// The last round's verdict on every candidate.
+    pub verdicts: Vec<(String, Verdict)>,
+    pub gap_before: f64,
+    pub gap_after: f64,
+    pub p_value_after: f64,
+    /// Mean squared whitened error of each step's mean predicted with that step left out, before
+    /// and after the named effects (steps the model cannot do without are skipped).
+    pub held_out_before: f64,
+    pub held_out_after: f64,
+    /// The gap is still above the noise and no candidate helps.
+    pub unmodelled_effect_remains: bool,
+    pub per_step_after: Vec<Vec<f64>>,
+}
+
+/// Settings of a diagnosis.
+#[derive(Debug, Clone, Copy)]
+pub struct DiagnoseSettings {
+    /// Familywise level of the effect tests (Bonferroni over the candidates of a round).
+    pub alpha: f64,
+    /// Reference temperature of the temperature effects, deg C.
+    pub temp_ref_c: f64,
+    pub g_m_s2: f64,
+    pub form: Form,
+}
+
+impl Default for DiagnoseSettings {
+    fn default() -> Self {
+        Self { alpha: 0.01, temp_ref_c: 25.0, g_m_s2: crate::units::STANDARD_GRAVITY_M_S2, form: Form::Triad }
+    }
+}
+
+/// The candidates for a log: every per-accelerometer effect on every accelerometer, and every
+/// shared effect; temperature effects only when the log has `temp_c`.
+pub fn candidates(n: usize, has_temperature: bool) -> Vec<Candidate> {
+    let mut out = Vec::new();
+    for e in library() {
+        if e.needs_temperature() && !has_temperature {
+            continue;
+        }
+        match e.scope() {
+            Scope::PerAccelerometer => {
+                for j in 0..n {
+                    if let Some(effect) = super::effect::by_name(e.name()) {
+                        out.push(Candidate { effect, accelerometer: Some(j) });
+                    }
+                }
+            }
+            Scope::Shared => out.push(Candidate { effect: e, accelerometer: None }),
+        }
+    }
+    out
+}
+
+#[allow(clippy::too_many_arguments)]
+fn fit_extended(
+    layout: &Layout,
+    schedule: &Schedule,
+    log: &CalibrationLog,
+    meas: &Measurements,
+    effects: &[&Candidate],
+    start: &DVector<f64>,
+    sigma: f64,
+    s: &DiagnoseSettings,
+) -> ExtendedFit {
+    let problem = Extended::new(
+        layout,
+        schedule,
+        log,
+        meas,
+        effects,
+        &start.rows(0, layout.len()).into_owned(),
+        sigma,
+        s.temp_ref_c,
+        s.g_m_s2,
+    );
+    let mut problem = problem;
+    let p0 = problem.x.len();
+    // Start from the previous solution where it has the parameters.
+    for i in 0..start.len().min(p0) {
+        problem.x[i] = start[i];
+    }
+    let (problem, _) = LevenbergMarquardt::new().with_patience(20).minimize(problem);
+    let r = problem.evaluate(&problem.x, None);
+    let j = problem.jacobian_at(&problem.x);
+    let covariance = (j.transpose() * &j).try_inverse().unwrap_or_else(|| DMatrix::from_element(p0, p0, f64::NAN));
+    ExtendedFit {
+        x: problem.x.clone(),
+        chi2: r.norm_squared(),
+        dof: r.len().saturating_sub(p0),
+        covariance,
+        whitened: r,
+    }
+}
+
+fn p_chi2(chi2: f64, dof: usize) -> f64 {
+    if dof == 0 {
+        return f64::NAN;
+    }
+    ChiSquared::new(dof as f64).map(|d| d.sf(chi2)).unwrap_or(f64::NAN)
+}
+
+/// Diagnoses a log (see the module docs): the baseline fit, then effects added one at a time
+/// while one is significant.
+pub fn diagnose(
+    log: &CalibrationLog,
+    array: &Array,
+    nominal: &ArrayParams,
+    s: &DiagnoseSettings,
+) -> Result<Diagnosis, DiagnoseError> {
+    let baseline = fit_baseline(log, array, nominal, s.form, s.g_m_s2)?;
+    let schedule = log.schedule()?;
+    let meas = log.measurements();
+    let layout = Layout::new(array, s.form).map_err(CalibError::from)?;
+    let sigma = baseline.noise_sigma_m_s2;
+    let pool = candidates(array.len(), log.has_temperature());
+    let mut included: Vec<usize> = Vec::new();
+    let mut current = fit_extended(&layout, &schedule, log, &meas, &[], &baseline.estimate.x, sigma, s);
+    let gap_before = current.chi2 / current.dof as f64;
+    let mut findings = Vec::new();
+    let mut verdicts = Vec::new();
+    loop {
+        let effects: Vec<&Candidate> = included.iter().map(|&i| &pool[i]).collect();
+        // The current model's Jacobian, for the rank tests.
+        let model = Extended::new(
+            &layout,
+            &schedule,
+            log,
+            &meas,
+            &effects,
+            &current.x.rows(0, layout.len()).into_owned(),
+            sigma,
+            s.temp_ref_c,
+            s.g_m_s2,
+        );
+        let mut model = model;
+        model.x.copy_from(&current.x);
+        let jm = model.jacobian_at(&current.x);
+        let svd = jm.clone().svd(true, false);
+        let tol = 1e-9 * svd.singular_values.max();
+        let u = svd.u.as_ref().map(|u| {
+            let keep: Vec<usize> = (0..svd.singular_values.len()).filter(|&i| svd.singular_values[i] > tol).collect();
+            DMatrix::from_fn(u.nrows(), keep.len(), |r, c| u[(r, keep[c])])
+        });
+        let Some(u) = u else { break };
+        let names: Vec<String> = (0..current.x.len())
+            .map(|i| if i < layout.len() { layout.name(i) } else { "an included effect".to_string() })
+            .collect();
+        // Each remaining candidate's regressors, with the current model's span removed.
+        let mut residual_regs: Vec<(usize, DMatrix<f64>, f64)> = Vec::new();
+        verdicts.clear();
+        for (ci, c) in pool.iter().enumerate() {
+            if included.contains(&ci) {
+                continue;
+            }
+            let one = [c];
+            let probe = Extended::new(
+                &layout,
+                &schedule,
+                log,
+                &meas,
+                &one,
+                &current.x.rows(0, layout.len()).into_owned(),
+                sigma,
+                s.temp_ref_c,
+                s.g_m_s2,
+            );
+            let mut regs = Vec::new();
+            let mut xp = probe.x.clone();
+            xp.rows_mut(0, layout.len()).copy_from(&current.x.rows(0, layout.len()));
+            probe.evaluate(&xp, Some(&mut regs));
+            let rmat = DMatrix::from_fn(regs[0].len(), regs.len(), |r, k| regs[k][r]);
+            let norm = rmat.norm();
+            if norm == 0.0 {
+                verdicts
+                    .push((c.label(), Verdict::ConfoundedWithModel(vec!["nothing: the log never excites it".into()])));
+                continue;
+            }
+            let perp = &rmat - &u * (u.transpose() * &rmat);
+            let ratio = perp.norm() / norm;
+            if ratio < 1e-6 {
+                // Name what absorbs it: the least-squares coefficients on the model's columns.
+                let beta = jm
+                    .clone()
+                    .svd(true, true)
+                    .solve(&rmat, 1e-12)
+                    .unwrap_or_else(|_| DMatrix::zeros(jm.ncols(), rmat.ncols()));
+                let scale: Vec<f64> = (0..jm.ncols()).map(|i| beta.row(i).norm() * jm.column(i).norm()).collect();
+                let total: f64 = scale.iter().sum();
+                let mut idx: Vec<usize> = (0..scale.len()).filter(|&i| scale[i] > 0.02 * total).collect();
+                idx.sort_by(|a, b| scale[*b].total_cmp(&scale[*a]));
+                let with: Vec<String> = idx.iter().take(8).map(|&i| names[i].clone()).collect();
+                verdicts.push((c.label(), Verdict::ConfoundedWithModel(with)));
+                continue;
+            }
+            residual_regs.push((ci, perp, ratio));
+        }
+        // Test every separable candidate.
+        let mut tested: Vec<(usize, ExtendedFit, f64, f64)> = Vec::new();
+        for (ci, _, _) in &residual_regs {
+            let mut effects: Vec<&Candidate> = included.iter().map(|&i| &pool[i]).collect();
+            effects.push(&pool[*ci]);
+            let fit = fit_extended(&layout, &schedule, log, &meas, &effects, &current.x, sigma, s);
+            let dp = fit.x.len() - current.x.len();
+            let delta = (current.chi2 - fit.chi2).max(0.0);
+            let p = p_chi2(delta, dp);
+            verdicts.push((pool[*ci].label(), Verdict::Tested { delta_chi2: delta, p_value: p }));
+            tested.push((*ci, fit, delta, p));
+        }
+        let threshold = s.alpha / tested.len().max(1) as f64;
+        let Some(best) =
+            tested.iter().filter(|t| t.3 < threshold).min_by(|a, b| a.3.total_cmp(&b.3).then(b.2.total_cmp(&a.2)))
+        else {
+            break;
+        };
+        let (ci, fit, _, p) = best.clone();
+        // Another candidate whose unexplained part is parallel to the best one's explains the
+        // same gap: the log cannot tell them apart.
+        let best_perp = residual_regs.iter().find(|r| r.0 == ci).map(|r| r.1.clone());
+        let confounded_with = best_perp.and_then(|bp| {
+            residual_regs.iter().filter(|r| r.0 != ci && r.1.ncols() == 1 && bp.ncols() == 1).find_map(|r| {
+                let cos = (bp.column(0).dot(&r.1.column(0)) / (bp.norm() * r.1.norm())).abs();
+                (cos > 0.999).then(|| pool[r.0].label())
+            })
+        });
+        let off = current.x.len();
+        let m = fit.x.len() - off;
+        let c = &pool[ci];
+        findings.push(Finding {
+            name: c.effect.name().to_string(),
+            accelerometer: c.accelerometer,
+            value: fit.x.rows(off, m).iter().copied().collect(),
+            sigma: (0..m).map(|i| fit.covariance[(off + i, off + i)].max(0.0).sqrt()).collect(),
+            unit: c.effect.unit().to_string(),
+            gap_before: current.chi2 / current.dof as f64,
+            gap_after: fit.chi2 / fit.dof as f64,
+            p_value: p,
+            confounded_with,
+        });
+        included.push(ci);
+        current = fit;
+    }
+    let effects: Vec<&Candidate> = included.iter().map(|&i| &pool[i]).collect();
+    let held_out_before = held_out(&layout, &schedule, log, &meas, &[], &baseline.estimate.x, sigma, s);
+    let held_out_after = held_out(&layout, &schedule, log, &meas, &effects, &current.x, sigma, s);
+    let p_value_after = p_chi2(current.chi2, current.dof);
+    let n = array.len();
+    let per_step_after = (0..schedule.len()).map(|st| (0..n).map(|j| current.whitened[st * n + j]).collect()).collect();
+    Ok(Diagnosis {
+        gap_before,
+        gap_after: current.chi2 / current.dof as f64,
+        p_value_after,
+        held_out_before,
+        held_out_after,
+        unmodelled_effect_remains: p_value_after < s.alpha,
+        findings,
+        verdicts,
+        baseline,
+        per_step_after,
+    })
+}
+
+/// Leave-one-step-out prediction: each step's means predicted by the model fitted without it,
+/// mean squared whitened error per output (about 1 plus p/(S N) for a right model).
+#[allow(clippy::too_many_arguments)]
+fn held_out(
+    layout: &Layout,
+    schedule: &Schedule,
+    log: &CalibrationLog,
+    meas: &Measurements,
+    effects: &[&Candidate],
+    x: &DVector<f64>,
+    sigma: f64,
+    s: &DiagnoseSettings,
+) -> f64 {
+    let n = layout.array().len();
+    let full = Extended::new(
+        layout,
+        schedule,
+        log,
+        meas,
+        effects,
+        &x.rows(0, layout.len()).into_owned(),
+        sigma,
+        s.temp_ref_c,
+        s.g_m_s2,
+    );
+    let mut total = 0.0;
+    let mut count = 0usize;
+    for leave in 0..schedule.len() {
+        // Zero weight on the left-out step's rows: the fit ignores them, then they are predicted.
+        let mut problem = Extended::new(
+            layout,
+            schedule,
+            log,
+            meas,
+            effects,
+            &x.rows(0, layout.len()).into_owned(),
+            sigma,
+            s.temp_ref_c,
+            s.g_m_s2,
+        );
+        problem.x.copy_from(x);
+        let saved = problem.weight[leave].clone();
+        problem.weight[leave].iter_mut().for_each(|w| *w = 0.0);
+        // A step the model cannot do without (e.g. one of only three spins) cannot be predicted.
+        let sv = problem.jacobian_at(&problem.x).singular_values();
+        if sv.min() <= 1e-9 * sv.max() {
+            continue;
+        }
+        let (mut problem, _) = LevenbergMarquardt::new().with_patience(50).minimize(problem);
+        problem.weight[leave] = saved;
+        let r = problem.evaluate(&problem.x.clone(), None);
+        for j in 0..n {
+            total += r[leave * n + j].powi(2);
+            count += 1;
+        }
+    }
+    let _ = full;
+    if count == 0 { f64::NAN } else { total / count as f64 }
+}
