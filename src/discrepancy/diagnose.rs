@@ -150,7 +150,8 @@ struct Extended<'a> {
     statics: usize,
     spins: usize,
     g_m_s2: f64,
-    /// Whitening: 1 / (k_j sigma / sqrt(n_s)), by step and accelerometer.
+    /// Whitening: 1 / (k_j sigma_j / sqrt(n_s)), by step and accelerometer (sigma_j includes any
+    /// correlated-noise inflation).
     weight: Vec<Vec<f64>>,
     x: DVector<f64>,
 }
@@ -164,7 +165,7 @@ impl<'a> Extended<'a> {
         meas: &'a Measurements,
         effects: &'a [&'a Candidate],
         x_baseline: &DVector<f64>,
-        sigma: f64,
+        sigma: &[f64],
         temp_ref_c: f64,
         g_m_s2: f64,
     ) -> Self {
@@ -195,7 +196,7 @@ impl<'a> Extended<'a> {
             .iter()
             .map(|m| {
                 (0..layout.array().len())
-                    .map(|j| (m.samples as f64).sqrt() / (x_baseline[PER_ACCEL * j].abs() * sigma))
+                    .map(|j| (m.samples as f64).sqrt() / (x_baseline[PER_ACCEL * j].abs() * sigma[j]))
                     .collect()
             })
             .collect();
@@ -423,7 +424,7 @@ fn fit_extended(
     meas: &Measurements,
     effects: &[&Candidate],
     start: &DVector<f64>,
-    sigma: f64,
+    sigma: &[f64],
     s: &DiagnoseSettings,
 ) -> ExtendedFit {
     let problem = Extended::new(
@@ -475,12 +476,46 @@ pub fn diagnose(
     let schedule = log.schedule()?;
     let meas = log.measurements();
     let layout = Layout::new(array, s.form).map_err(CalibError::from)?;
-    let sigma = baseline.noise_sigma_m_s2;
+    // The noise model first: correlated noise within steps (an Allan-variance excess over white
+    // noise, per accelerometer, Bonferroni over all tests) is named, and the accelerometer's step
+    // means are weighted with the variance it implies (the ratio at the largest significant
+    // cluster), before any deterministic effect is tested against that noise.
+    let k: Vec<f64> = (0..array.len()).map(|j| baseline.estimate.x[PER_ACCEL * j]).collect();
+    let tests = allan_tests(log, &k);
+    let allan_threshold = s.alpha / tests.len().max(1) as f64;
+    let mut inflation = vec![1.0; array.len()];
+    let mut noise_findings = Vec::new();
+    for j in 0..array.len() {
+        let significant: Vec<&AllanTest> =
+            tests.iter().filter(|t| t.accelerometer == j && t.p_value < allan_threshold).collect();
+        let Some(best) = significant.iter().max_by_key(|t| t.cluster_samples) else { continue };
+        let strongest = significant.iter().map(|t| t.p_value).fold(f64::INFINITY, f64::min);
+        inflation[j] = best.ratio.max(1.0);
+        noise_findings.push(Finding {
+            name: "bias_instability".into(),
+            accelerometer: Some(j),
+            value: vec![best.excess_adev_m_s2],
+            sigma: vec![
+                best.excess_adev_m_s2 * (0.5 / best.differences as f64).sqrt() * best.ratio
+                    / (best.ratio - 1.0).max(1e-9),
+            ],
+            unit: format!("m/s^2 (Allan deviation over white noise at {:.2} s)", best.cluster_s),
+            gap_before: baseline.chi2_per_dof(),
+            gap_after: f64::NAN,
+            p_value: strongest,
+            confounded_with: None,
+        });
+    }
+    let sigma_owned: Vec<f64> = inflation.iter().map(|f| baseline.noise_sigma_m_s2 * f.sqrt()).collect();
+    let sigma = sigma_owned.as_slice();
     let pool = candidates(array.len(), log.has_temperature());
     let mut included: Vec<usize> = Vec::new();
     let mut current = fit_extended(&layout, &schedule, log, &meas, &[], &baseline.estimate.x, sigma, s);
-    let gap_before = current.chi2 / current.dof as f64;
-    let mut findings = Vec::new();
+    let gap_before = baseline.chi2_per_dof();
+    for f in &mut noise_findings {
+        f.gap_after = current.chi2 / current.dof as f64;
+    }
+    let mut findings = noise_findings;
     let mut verdicts = Vec::new();
     loop {
         let effects: Vec<&Candidate> = included.iter().map(|&i| &pool[i]).collect();
@@ -603,8 +638,8 @@ pub fn diagnose(
         included.push(ci);
         current = fit;
     }
-    let effects: Vec<&Candidate> = included.iter().map(|&i| &pool[i]).collect();
     let held_out_before = held_out(&layout, &schedule, log, &meas, &[], &baseline.estimate.x, sigma, s);
+    let effects: Vec<&Candidate> = included.iter().map(|&i| &pool[i]).collect();
     let held_out_after = held_out(&layout, &schedule, log, &meas, &effects, &current.x, sigma, s);
     let p_value_after = p_chi2(current.chi2, current.dof);
     let n = array.len();
@@ -633,7 +668,7 @@ fn held_out(
     meas: &Measurements,
     effects: &[&Candidate],
     x: &DVector<f64>,
-    sigma: f64,
+    sigma: &[f64],
     s: &DiagnoseSettings,
 ) -> f64 {
     let n = layout.array().len();
@@ -681,4 +716,74 @@ fn held_out(
     }
     let _ = full;
     if count == 0 { f64::NAN } else { total / count as f64 }
+}
+
+/// Allan-variance test of one accelerometer's within-step residuals (samples about their step
+/// mean, model-free): at cluster size `m`, white noise gives `m AVAR(m) / sigma^2 = 1`, and `K`
+/// times the estimate is about chi-square with `K` degrees of freedom (`K` cluster differences).
+#[derive(Debug, Clone, PartialEq)]
+pub struct AllanTest {
+    pub accelerometer: usize,
+    pub cluster_samples: usize,
+    pub cluster_s: f64,
+    /// `m AVAR(m) / sigma^2`.
+    pub ratio: f64,
+    pub differences: usize,
+    pub p_value: f64,
+    /// Allan deviation in excess of white noise at this cluster, input-referred, m/s^2.
+    pub excess_adev_m_s2: f64,
+}
+
+/// The Allan tests of every accelerometer at cluster sizes of 10, 50 and 200 samples (those that
+/// fit twice in a step).
+pub fn allan_tests(log: &CalibrationLog, k: &[f64]) -> Vec<AllanTest> {
+    let n = log.n;
+    let mut out = Vec::new();
+    for j in 0..n {
+        let residuals: Vec<Vec<f64>> = log
+            .steps
+            .iter()
+            .map(|s| {
+                let m = s.samples();
+                let mean = (0..m).map(|i| s.outputs[i * n + j]).sum::<f64>() / m as f64;
+                (0..m).map(|i| (s.outputs[i * n + j] - mean) / k[j]).collect()
+            })
+            .collect();
+        let (ss, dof) = residuals
+            .iter()
+            .fold((0.0, 0usize), |(a, d), r| (a + r.iter().map(|v| v * v).sum::<f64>(), d + r.len().saturating_sub(1)));
+        if dof == 0 || ss == 0.0 {
+            continue;
+        }
+        let sigma2 = ss / dof as f64;
+        for m in [10usize, 50, 200] {
+            let (mut sum, mut count, mut dt) = (0.0, 0usize, 0.0);
+            for (r, s) in residuals.iter().zip(&log.steps) {
+                let clusters: Vec<f64> = r.chunks_exact(m).map(|c| c.iter().sum::<f64>() / m as f64).collect();
+                for w in clusters.windows(2) {
+                    sum += (w[1] - w[0]).powi(2);
+                    count += 1;
+                }
+                if s.samples() > 1 {
+                    dt = (s.t_s[s.samples() - 1] - s.t_s[0]) / (s.samples() - 1) as f64;
+                }
+            }
+            if count < 10 {
+                continue;
+            }
+            let avar = sum / (2.0 * count as f64);
+            let ratio = m as f64 * avar / sigma2;
+            let p_value = p_chi2(ratio * count as f64, count);
+            out.push(AllanTest {
+                accelerometer: j,
+                cluster_samples: m,
+                cluster_s: m as f64 * dt,
+                ratio,
+                differences: count,
+                p_value,
+                excess_adev_m_s2: (avar - sigma2 / m as f64).max(0.0).sqrt(),
+            });
+        }
+    }
+    out
 }
