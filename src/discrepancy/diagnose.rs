@@ -485,12 +485,12 @@ pub fn diagnose(
     let allan_threshold = s.alpha / tests.len().max(1) as f64;
     let mut inflation = vec![1.0; array.len()];
     let mut noise_findings = Vec::new();
-    for j in 0..array.len() {
+    for (j, inflation_j) in inflation.iter_mut().enumerate() {
         let significant: Vec<&AllanTest> =
             tests.iter().filter(|t| t.accelerometer == j && t.p_value < allan_threshold).collect();
         let Some(best) = significant.iter().max_by_key(|t| t.cluster_samples) else { continue };
         let strongest = significant.iter().map(|t| t.p_value).fold(f64::INFINITY, f64::min);
-        inflation[j] = best.ratio.max(1.0);
+        *inflation_j = best.ratio.max(1.0);
         noise_findings.push(Finding {
             name: "bias_instability".into(),
             accelerometer: Some(j),
@@ -739,14 +739,14 @@ pub struct AllanTest {
 pub fn allan_tests(log: &CalibrationLog, k: &[f64]) -> Vec<AllanTest> {
     let n = log.n;
     let mut out = Vec::new();
-    for j in 0..n {
+    for (j, kj) in k.iter().enumerate().take(n) {
         let residuals: Vec<Vec<f64>> = log
             .steps
             .iter()
             .map(|s| {
                 let m = s.samples();
                 let mean = (0..m).map(|i| s.outputs[i * n + j]).sum::<f64>() / m as f64;
-                (0..m).map(|i| (s.outputs[i * n + j] - mean) / k[j]).collect()
+                (0..m).map(|i| (s.outputs[i * n + j] - mean) / kj).collect()
             })
             .collect();
         let (ss, dof) = residuals
