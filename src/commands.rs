@@ -342,6 +342,18 @@ pub fn diagnose(
         z.iter().map(|v| v * v).sum::<f64>() / z.len().max(1) as f64
     };
     println!("mean z^2 by step kind: static {:.2}, spin {:.2}", by_kind(false), by_kind(true));
+    let correlations =
+        gfcal::discrepancy::diagnose::regressor_correlations(&log, &array, b, settings.form, settings.g_m_s2);
+    println!("\ncorrelation of the baseline residuals with candidate regressors (per accelerometer):");
+    let mut head = format!("  {:<12}", "regressor");
+    for j in 1..=n {
+        head.push_str(&format!(" {:>7}", format!("s{j}")));
+    }
+    println!("{head}");
+    for (name, r) in &correlations {
+        let cells: String = r.iter().map(|v| format!(" {v:>7.2}")).collect();
+        println!("  {name:<12}{cells}");
+    }
     println!("\neffects named:");
     if d.findings.is_empty() {
         println!("  none");
@@ -407,6 +419,7 @@ pub fn diagnose(
                 "p_value": f.p_value,
                 "confounded_with": f.confounded_with,
             })).collect::<Vec<_>>(),
+            "regressor_correlations": correlations.iter().map(|(name, r)| serde_json::json!({"regressor": name, "per_accelerometer": r})).collect::<Vec<_>>(),
             "candidates": d.verdicts.iter().map(|(l, v)| serde_json::json!({"candidate": l, "verdict": verdict_json(v)})).collect::<Vec<_>>(),
             "per_step": log.steps.iter().enumerate().map(|(i, s)| serde_json::json!({
                 "step": s.step,

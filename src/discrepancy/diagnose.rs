@@ -718,72 +718,136 @@ fn held_out(
     if count == 0 { f64::NAN } else { total / count as f64 }
 }
 
-/// Allan-variance test of one accelerometer's within-step residuals (samples about their step
-/// mean, model-free): at cluster size `m`, white noise gives `m AVAR(m) / sigma^2 = 1`, and `K`
-/// times the estimate is about chi-square with `K` degrees of freedom (`K` cluster differences).
+/// Test of one accelerometer's within-step samples for correlated noise at a cluster size `m`
+/// (model-free): within each step the samples are cut into clusters of `m`, and the variance of
+/// the cluster means about their step mean (times `m`) is compared with the variance within
+/// clusters. Under white Gaussian noise their ratio is exactly F-distributed with
+/// (clusters - steps, samples - clusters) degrees of freedom; noise correlated over about `m`
+/// samples (bias instability) makes it larger. This is the Allan-variance comparison done as an
+/// exact test (adjacent Allan differences share a cluster and are not independent).
 #[derive(Debug, Clone, PartialEq)]
 pub struct AllanTest {
     pub accelerometer: usize,
     pub cluster_samples: usize,
     pub cluster_s: f64,
-    /// `m AVAR(m) / sigma^2`.
+    /// The F ratio: `m var(cluster means) / var(within clusters)`, 1 for white noise.
     pub ratio: f64,
+    /// Degrees of freedom of the numerator (cluster means less step means).
     pub differences: usize,
     pub p_value: f64,
-    /// Allan deviation in excess of white noise at this cluster, input-referred, m/s^2.
+    /// Standard deviation of the cluster means in excess of white noise, input-referred, m/s^2.
     pub excess_adev_m_s2: f64,
 }
 
-/// The Allan tests of every accelerometer at cluster sizes of 10, 50 and 200 samples (those that
-/// fit twice in a step).
+/// The correlated-noise tests of every accelerometer at cluster sizes of 10, 50 and 200 samples
+/// (those that fit at least twice in a step).
 pub fn allan_tests(log: &CalibrationLog, k: &[f64]) -> Vec<AllanTest> {
+    use statrs::distribution::FisherSnedecor;
     let n = log.n;
     let mut out = Vec::new();
     for (j, kj) in k.iter().enumerate().take(n) {
-        let residuals: Vec<Vec<f64>> = log
-            .steps
-            .iter()
-            .map(|s| {
-                let m = s.samples();
-                let mean = (0..m).map(|i| s.outputs[i * n + j]).sum::<f64>() / m as f64;
-                (0..m).map(|i| (s.outputs[i * n + j] - mean) / kj).collect()
-            })
-            .collect();
-        let (ss, dof) = residuals
-            .iter()
-            .fold((0.0, 0usize), |(a, d), r| (a + r.iter().map(|v| v * v).sum::<f64>(), d + r.len().saturating_sub(1)));
-        if dof == 0 || ss == 0.0 {
-            continue;
-        }
-        let sigma2 = ss / dof as f64;
         for m in [10usize, 50, 200] {
-            let (mut sum, mut count, mut dt) = (0.0, 0usize, 0.0);
-            for (r, s) in residuals.iter().zip(&log.steps) {
-                let clusters: Vec<f64> = r.chunks_exact(m).map(|c| c.iter().sum::<f64>() / m as f64).collect();
-                for w in clusters.windows(2) {
-                    sum += (w[1] - w[0]).powi(2);
-                    count += 1;
+            let (mut between, mut within) = (0.0, 0.0);
+            let (mut df1, mut df2) = (0usize, 0usize);
+            let mut dt = 0.0;
+            for s in &log.steps {
+                let samples = s.samples();
+                let clusters = samples / m;
+                if clusters < 2 {
+                    continue;
                 }
-                if s.samples() > 1 {
-                    dt = (s.t_s[s.samples() - 1] - s.t_s[0]) / (s.samples() - 1) as f64;
+                if samples > 1 {
+                    dt = (s.t_s[samples - 1] - s.t_s[0]) / (samples - 1) as f64;
                 }
+                let x: Vec<f64> = (0..clusters * m).map(|i| s.outputs[i * n + j] / kj).collect();
+                let means: Vec<f64> = x.chunks_exact(m).map(|c| c.iter().sum::<f64>() / m as f64).collect();
+                let grand = means.iter().sum::<f64>() / clusters as f64;
+                between += means.iter().map(|c| m as f64 * (c - grand).powi(2)).sum::<f64>();
+                within += x
+                    .chunks_exact(m)
+                    .zip(&means)
+                    .map(|(c, mu)| c.iter().map(|v| (v - mu).powi(2)).sum::<f64>())
+                    .sum::<f64>();
+                df1 += clusters - 1;
+                df2 += clusters * (m - 1);
             }
-            if count < 10 {
+            if df1 < 10 || df2 == 0 || within <= 0.0 {
                 continue;
             }
-            let avar = sum / (2.0 * count as f64);
-            let ratio = m as f64 * avar / sigma2;
-            let p_value = p_chi2(ratio * count as f64, count);
+            let (mb, mw) = (between / df1 as f64, within / df2 as f64);
+            let ratio = mb / mw;
+            let p_value = FisherSnedecor::new(df1 as f64, df2 as f64).map(|f| f.sf(ratio)).unwrap_or(f64::NAN);
             out.push(AllanTest {
                 accelerometer: j,
                 cluster_samples: m,
                 cluster_s: m as f64 * dt,
                 ratio,
-                differences: count,
+                differences: df1,
                 p_value,
-                excess_adev_m_s2: (avar - sigma2 / m as f64).max(0.0).sqrt(),
+                excess_adev_m_s2: ((mb - mw) / m as f64).max(0.0).sqrt(),
             });
         }
     }
     out
+}
+
+/// Correlation of the baseline's whitened step residuals with simple regressors, per
+/// accelerometer: where the disagreement lines up (a large |r| on `input^2` points at a quadratic
+/// scale factor, on `time` at a drift, on `rate^2` at a spin effect). Rows: (regressor,
+/// correlation per accelerometer); NaN where the regressor does not vary.
+pub fn regressor_correlations(
+    log: &CalibrationLog,
+    array: &Array,
+    fit: &BaselineFit,
+    form: Form,
+    g_m_s2: f64,
+) -> Vec<(String, Vec<f64>)> {
+    let Ok(layout) = Layout::new(array, form) else { return vec![] };
+    let Ok(schedule) = log.schedule() else { return vec![] };
+    let n = array.len();
+    let mut u = vec![vec![0.0; n]; schedule.len()];
+    for (s, step) in schedule.steps().iter().enumerate() {
+        let motion = StepMotion::new(step, g_m_s2);
+        for (j, uj) in u[s].iter_mut().enumerate() {
+            let xj: [f64; PER_ACCEL] = std::array::from_fn(|a| fit.estimate.x[PER_ACCEL * j + a]);
+            let (axis, _) = layout.axis(j, [xj[2], xj[3]]);
+            let r = array.accelerometers()[j].position_m + nalgebra::Vector3::new(xj[4], xj[5], xj[6]);
+            *uj = axis.dot(&(motion.gravity_up_m_s2 + motion.w2 * r));
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let t: Vec<f64> = log.steps.iter().map(|s| mean(&s.t_s)).collect();
+    let temp: Vec<f64> =
+        log.steps.iter().map(|s| if s.temp_c.is_empty() { f64::NAN } else { mean(&s.temp_c) }).collect();
+    let w2: Vec<f64> = log.steps.iter().map(|s| s.omega_b_rad_s.norm_squared()).collect();
+    let corr = |x: &[f64], y: &[f64]| {
+        let (mx, my) = (mean(x), mean(y));
+        let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
+        let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
+        let syy: f64 = y.iter().map(|b| (b - my).powi(2)).sum();
+        if sxx > 0.0 && syy > 0.0 { sxy / (sxx * syy).sqrt() } else { f64::NAN }
+    };
+    let mut rows = Vec::new();
+    let regressors: Vec<(&str, Box<dyn Fn(usize, usize) -> f64>)> = vec![
+        ("input", Box::new(|s, j| u[s][j])),
+        ("input^2", Box::new(|s, j| u[s][j].powi(2))),
+        ("input^3", Box::new(|s, j| u[s][j].powi(3))),
+        ("time", Box::new(|s, _| t[s])),
+        ("temperature", Box::new(|s, _| temp[s])),
+        ("rate^2", Box::new(|s, _| w2[s])),
+    ];
+    for (name, f) in regressors {
+        if name == "temperature" && !log.has_temperature() {
+            continue;
+        }
+        let per_accel = (0..n)
+            .map(|j| {
+                let x: Vec<f64> = (0..schedule.len()).map(|s| f(s, j)).collect();
+                let z: Vec<f64> = fit.whitened.iter().map(|z| z[j]).collect();
+                corr(&x, &z)
+            })
+            .collect();
+        rows.push((name.to_string(), per_accel));
+    }
+    rows
 }

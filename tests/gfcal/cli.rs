@@ -348,3 +348,70 @@ fn explicit_schedule_in_toml_works() {
     let body = |o: &Output| String::from_utf8_lossy(&o.stdout).lines().skip(1).collect::<Vec<_>>().join("\n");
     assert_eq!(body(&o), body(&preset));
 }
+
+#[test]
+fn simulate_log_then_diagnose_end_to_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("log.parquet");
+    let o = gfcal(&["simulate-log", "configs/discrepancy_example.toml", "--out", log.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("effects hidden: scale_factor_quadratic"));
+    let json = dir.path().join("d.json");
+    let o = gfcal(&["diagnose", log.to_str().unwrap(), "--json", json.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("scale_factor_quadratic on accelerometer 3"), "{out}");
+    let d: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let effects = d["effects"].as_array().unwrap();
+    assert_eq!(effects.len(), 1);
+    assert_eq!(effects[0]["name"], "scale_factor_quadratic");
+    assert_eq!(effects[0]["accelerometer"], 3);
+    for key in ["value", "sigma", "unit"] {
+        assert!(!effects[0][key].is_null(), "{key}");
+    }
+    assert!(d["gap_before"].as_f64().unwrap() > 3.0 && d["gap_after"].as_f64().unwrap() < 1.5);
+    assert_eq!(d["per_step"].as_array().unwrap().len(), 15);
+}
+
+#[test]
+fn bad_logs_and_short_logs_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.csv");
+    std::fs::write(&bad, "step,t_s,up_x\n1,0,1\n").unwrap();
+    let o = gfcal(&["diagnose", bad.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("bad.csv: missing column(s): up_y, up_z"), "{}", stderr(&o));
+    // A log of the first five steps only: refused with the number of steps it needs.
+    let full = dir.path().join("full.csv");
+    assert!(
+        gfcal(&["simulate-log", "configs/discrepancy_example.toml", "--out", full.to_str().unwrap()]).status.success()
+    );
+    let text = std::fs::read_to_string(&full).unwrap();
+    let short: String = text
+        .lines()
+        .filter(|l| l.split(',').next().is_some_and(|s| s == "step" || s.parse::<i64>().is_ok_and(|v| v <= 5)))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let short_path = dir.path().join("short.csv");
+    std::fs::write(&short_path, short).unwrap();
+    let o = gfcal(&["diagnose", short_path.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("the log has 5 steps; the baseline fit needs at least 8"), "{}", stderr(&o));
+    // A 9-accelerometer array against a 6-output log.
+    let o = gfcal(&["diagnose", full.to_str().unwrap(), "--array", "configs/arrays/nine.toml"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("6 outputs (s1..s6) but the array has 9"), "{}", stderr(&o));
+    // A temperature effect without a temperature profile.
+    let cfg =
+        std::fs::read_to_string("configs/discrepancy_example.toml").unwrap() + "bias_temperature_ug_per_c = 5.0\n";
+    let p = dir.path().join("t.toml");
+    std::fs::write(&p, cfg).unwrap();
+    let o = gfcal(&["simulate-log", p.to_str().unwrap(), "--out", dir.path().join("x.csv").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("effects.bias_temperature_ug_per_c") && stderr(&o).contains("[temperature]"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.path().join("x.csv").exists());
+}
