@@ -828,7 +828,8 @@ pub fn regressor_correlations(
         if sxx > 0.0 && syy > 0.0 { sxy / (sxx * syy).sqrt() } else { f64::NAN }
     };
     let mut rows = Vec::new();
-    let regressors: Vec<(&str, Box<dyn Fn(usize, usize) -> f64>)> = vec![
+    type Regressor<'r> = Box<dyn Fn(usize, usize) -> f64 + 'r>;
+    let regressors: Vec<(&str, Regressor)> = vec![
         ("input", Box::new(|s, j| u[s][j])),
         ("input^2", Box::new(|s, j| u[s][j].powi(2))),
         ("input^3", Box::new(|s, j| u[s][j].powi(3))),
