@@ -10,6 +10,8 @@
 //! start_c = 20.0
 //! end_c = 40.0
 //! reference_c = 25.0
+//! wobble_c = 3.0                    # optional sinusoid on the ramp (separates temperature from time)
+//! wobble_period_s = 60.0
 //! [effects]                         # all optional; one value, or one per accelerometer
 //! scale_factor_quadratic_ug_per_g2 = 50.0
 //! scale_factor_cubic_ug_per_g3 = 5.0
@@ -44,6 +46,8 @@ pub struct TemperatureSection {
     pub start_c: f64,
     pub end_c: f64,
     pub reference_c: Option<f64>,
+    pub wobble_c: Option<f64>,
+    pub wobble_period_s: Option<f64>,
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -116,6 +120,9 @@ impl SimulateLogConfig {
                 start_c: finite("temperature.start_c", t.start_c).map_err(bad)?,
                 end_c: finite("temperature.end_c", t.end_c).map_err(bad)?,
                 reference_c: finite("temperature.reference_c", t.reference_c.unwrap_or(t.start_c)).map_err(bad)?,
+                wobble_c: finite("temperature.wobble_c", t.wobble_c.unwrap_or(0.0)).map_err(bad)?,
+                wobble_period_s: positive("temperature.wobble_period_s", t.wobble_period_s.unwrap_or(60.0))
+                    .map_err(bad)?,
             }),
         };
         let e = &file.effects;

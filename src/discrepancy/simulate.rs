@@ -18,12 +18,29 @@ pub struct ActiveEffect {
     pub values: Vec<f64>,
 }
 
-/// A linear temperature ramp over the log, and the reference the effects use.
+/// A linear temperature ramp over the log, optionally with a sinusoidal wobble (which separates
+/// temperature from time), and the reference the effects use.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Temperature {
     pub start_c: f64,
     pub end_c: f64,
     pub reference_c: f64,
+    /// Amplitude and period of the wobble, deg C and s (0 amplitude: a plain ramp).
+    pub wobble_c: f64,
+    pub wobble_period_s: f64,
+}
+
+impl Temperature {
+    /// A plain linear ramp.
+    pub fn ramp(start_c: f64, end_c: f64, reference_c: f64) -> Self {
+        Self { start_c, end_c, reference_c, wobble_c: 0.0, wobble_period_s: 1.0 }
+    }
+
+    /// Temperature at `t_s` of a log lasting `total_s`.
+    pub fn at(&self, t_s: f64, total_s: f64) -> f64 {
+        let ramp = self.start_c + (self.end_c - self.start_c) * t_s / total_s.max(f64::MIN_POSITIVE);
+        ramp + self.wobble_c * (2.0 * std::f64::consts::PI * t_s / self.wobble_period_s).sin()
+    }
 }
 
 /// What a simulated log is made of.
@@ -92,7 +109,7 @@ impl LogSimulation<'_> {
             for i in 0..samples {
                 let t = t0 + i as f64 / step.sample_rate_hz;
                 let temp_delta = self.temperature.map(|tp| {
-                    let temp = tp.start_c + (tp.end_c - tp.start_c) * t / total_s.max(f64::MIN_POSITIVE);
+                    let temp = tp.at(t, total_s);
                     log_step.temp_c.push(temp);
                     temp - tp.reference_c
                 });

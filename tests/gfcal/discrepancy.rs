@@ -48,7 +48,7 @@ fn white(density_ug: f64) -> NoiseSpec {
 #[test]
 fn logs_round_trip_through_csv_and_parquet() {
     let cfg = example();
-    let temp = Some(Temperature { start_c: 20.0, end_c: 30.0, reference_c: 25.0 });
+    let temp = Some(Temperature::ramp(20.0, 30.0, 25.0));
     let log = simulate(&cfg, &[], white(50.0), temp, 1);
     assert!(log.has_temperature());
     let dir = tempfile::tempdir().unwrap();
@@ -292,7 +292,11 @@ mod diagnosis {
     }
 
     const G0: f64 = 9.80665;
-    const RAMP: Option<Temperature> = Some(Temperature { start_c: 15.0, end_c: 35.0, reference_c: 25.0 });
+    const RAMP: Option<Temperature> =
+        Some(Temperature { start_c: 15.0, end_c: 35.0, reference_c: 25.0, wobble_c: 0.0, wobble_period_s: 1.0 });
+    /// The same ramp with a 3 degC wobble of period 40 s: temperature no longer follows time.
+    const WOBBLE: Option<Temperature> =
+        Some(Temperature { start_c: 15.0, end_c: 35.0, reference_c: 25.0, wobble_c: 3.0, wobble_period_s: 40.0 });
 
     #[test]
     fn each_identifiable_effect_is_named_and_the_gap_closes() {
@@ -305,6 +309,10 @@ mod diagnosis {
         // 0.5 ug/s over a 150 s log is at the detection limit; 1 ug/s (a MEMS warm-up drift) is not.
         found(&run(&[effect("bias_time_drift", on(4, 1.0 * M_S2_PER_UG))], None, 5), "bias_time_drift", Some(4));
         found(&run(&[effect("scale_factor_temperature", on(3, 20e-6))], RAMP, 6), "scale_factor_temperature", Some(3));
+        // A temperature-driven bias needs a log whose temperature does not just follow time.
+        let d = run(&[effect("bias_temperature", on(1, 10.0 * M_S2_PER_UG))], WOBBLE, 13);
+        found(&d, "bias_temperature", Some(1));
+        assert!(d.findings[0].confounded_with.is_none(), "{:?}", d.findings[0]);
         let poses: Vec<f64> = (0..24).map(|i| 0.05f64.to_radians() * ((i as f64 * 0.7).sin())).collect();
         found(&run(&[effect("pose_misalignment", poses)], None, 7), "pose_misalignment", None);
     }
