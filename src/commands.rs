@@ -393,7 +393,6 @@ pub fn diagnose(
     if let Some(path) = json {
         let verdict_json = |v: &Verdict| match v {
             Verdict::ConfoundedWithModel(with) => serde_json::json!({"confounded_with_model": with}),
-            Verdict::ConfoundedWith(o) => serde_json::json!({"confounded_with": o}),
             Verdict::Tested { delta_chi2, p_value } => {
                 serde_json::json!({"delta_chi2": delta_chi2, "p_value": p_value})
             }

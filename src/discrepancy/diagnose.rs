@@ -336,8 +336,6 @@ pub struct ExtendedFit {
 pub enum Verdict {
     /// The log cannot separate it from the current model; what it is confounded with.
     ConfoundedWithModel(Vec<String>),
-    /// It cannot be separated from another candidate.
-    ConfoundedWith(String),
     /// Fitted: the fall in chi-square, its p-value, and the held-out gain.
     Tested { delta_chi2: f64, p_value: f64 },
 }
@@ -427,7 +425,7 @@ fn fit_extended(
     sigma: &[f64],
     s: &DiagnoseSettings,
 ) -> ExtendedFit {
-    let problem = Extended::new(
+    let mut problem = Extended::new(
         layout,
         schedule,
         log,
@@ -438,7 +436,6 @@ fn fit_extended(
         s.temp_ref_c,
         s.g_m_s2,
     );
-    let mut problem = problem;
     let p0 = problem.x.len();
     // Start from the previous solution where it has the parameters.
     for i in 0..start.len().min(p0) {
@@ -520,7 +517,7 @@ pub fn diagnose(
     loop {
         let effects: Vec<&Candidate> = included.iter().map(|&i| &pool[i]).collect();
         // The current model's Jacobian, for the rank tests.
-        let model = Extended::new(
+        let mut model = Extended::new(
             &layout,
             &schedule,
             log,
@@ -531,7 +528,6 @@ pub fn diagnose(
             s.temp_ref_c,
             s.g_m_s2,
         );
-        let mut model = model;
         model.x.copy_from(&current.x);
         let jm = model.jacobian_at(&current.x);
         let svd = jm.clone().svd(true, false);
@@ -714,7 +710,6 @@ fn held_out(
             count += 1;
         }
     }
-    let _ = full;
     if count == 0 { f64::NAN } else { total / count as f64 }
 }
 
