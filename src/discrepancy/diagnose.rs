@@ -668,17 +668,6 @@ fn held_out(
     s: &DiagnoseSettings,
 ) -> f64 {
     let n = layout.array().len();
-    let full = Extended::new(
-        layout,
-        schedule,
-        log,
-        meas,
-        effects,
-        &x.rows(0, layout.len()).into_owned(),
-        sigma,
-        s.temp_ref_c,
-        s.g_m_s2,
-    );
     let mut total = 0.0;
     let mut count = 0usize;
     for leave in 0..schedule.len() {
