@@ -94,6 +94,15 @@ enum Command {
         #[arg(long, default_value_t = 25.0)]
         reference_temp_c: f64,
     },
+    /// Which error parameters drive each drift metric of a run: standardised rank regression
+    /// coefficients (DIR/sensitivity.csv).
+    Sensitivity {
+        /// The run's output folder.
+        dir: PathBuf,
+        /// Trials per cell to use (the first by trial id).
+        #[arg(long, default_value_t = 20000)]
+        max_trials: usize,
+    },
     /// Recompute a run's summary (summary.csv) from its Parquet files.
     Summarize {
         /// The run's output folder.
@@ -155,6 +164,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             runs::run(&config, out, resume, force, shard.as_deref(), threads, progress_interval_s)
         }
         Command::Summarize { dir } => runs::summarize(&dir),
+        Command::Sensitivity { dir, max_trials } => runs::sensitivity(&dir, max_trials),
         Command::SimulateLog { config, out } => commands::simulate_log(&config, &out),
         Command::Diagnose { log, array, json, alpha, reference_temp_c } => {
             commands::diagnose(&log, array.as_deref(), json.as_deref(), alpha, reference_temp_c)

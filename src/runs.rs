@@ -162,3 +162,36 @@ fn print_summary(cfg: &McConfig, s: &Summary, complete: bool) {
         }
     }
 }
+
+pub fn sensitivity(dir: &Path, max_trials: usize) -> anyhow::Result<()> {
+    if !dir.join("run.json").exists() {
+        return Err(InputError::Other(format!("{}: no run.json; is this a gfcal run folder?", dir.display())).into());
+    }
+    if max_trials < 10 {
+        return Err(InputError::Other(format!("--max-trials must be at least 10, got {max_trials}")).into());
+    }
+    let rows = gfcal::mc::sensitivity::sensitivity(dir, max_trials).context("cannot compute the sensitivity")?;
+    let mut csv = String::from("cell,output,input,srrc,r2\n");
+    for r in &rows {
+        csv.push_str(&format!("{},{},\"{}\",{:e},{:e}\n", r.cell, r.output, r.input, r.srrc, r.r2));
+    }
+    let path = dir.join("sensitivity.csv");
+    gfcal::io::write_atomic(&path, csv.as_bytes()).with_context(|| format!("cannot write {}", path.display()))?;
+    // The three largest drivers of each output.
+    let mut outputs: Vec<(u32, String)> = rows.iter().map(|r| (r.cell, r.output.clone())).collect();
+    outputs.dedup();
+    println!("Largest standardised rank regression coefficients (SRRC) per drift column; R^2 of the rank regression:");
+    for (cell, output) in outputs {
+        let mut mine: Vec<&gfcal::mc::sensitivity::SensitivityRow> =
+            rows.iter().filter(|r| r.cell == cell && r.output == output).collect();
+        mine.sort_by(|a, b| b.srrc.abs().total_cmp(&a.srrc.abs()));
+        let top: Vec<String> = mine.iter().take(3).map(|r| format!("{} {:+.2}", r.input, r.srrc)).collect();
+        println!(
+            "  cell {cell} {output:<40} R^2 {:.2}: {}",
+            mine.first().map(|r| r.r2).unwrap_or(f64::NAN),
+            top.join(", ")
+        );
+    }
+    eprintln!("wrote {}", path.display());
+    Ok(())
+}

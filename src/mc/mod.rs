@@ -12,6 +12,7 @@ pub mod config;
 pub mod design;
 pub mod runner;
 pub mod sample;
+pub mod sensitivity;
 pub mod summary;
 pub mod trial;
 

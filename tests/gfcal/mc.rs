@@ -420,3 +420,64 @@ fn progress_lines_when_stderr_is_not_a_terminal() {
     assert!(String::from_utf8_lossy(&o.stdout).starts_with("Summary of 120 trials"));
     assert!(out.join("summary.csv").exists());
 }
+
+#[test]
+fn srrc_recovers_known_answers() {
+    use gfcal::mc::sensitivity::{ranks, srrc};
+    assert_eq!(ranks(&[3.0, 1.0, 2.0, 2.0]), vec![3.0, 0.0, 1.5, 1.5]);
+    let mut rng = gfcal::rng::trial_rng(5, 0);
+    use rand::RngExt;
+    let x1: Vec<f64> = (0..2000).map(|_| rng.random::<f64>()).collect();
+    let x2: Vec<f64> = (0..2000).map(|_| rng.random::<f64>()).collect();
+    // A monotone function of x1 alone: x1 gets the whole index.
+    let y: Vec<f64> = x1.iter().map(|v| v.powi(3)).collect();
+    let (c, r2) = srrc(&[x1.clone(), x2.clone(), vec![1.0; 2000]], &y);
+    assert!(
+        (c[0].unwrap() - 1.0).abs() < 1e-9 && c[1].unwrap().abs() < 1e-9 && c[2].is_none() && (r2 - 1.0).abs() < 1e-9
+    );
+    // Two equal, independent contributions share it.
+    let y: Vec<f64> = x1.iter().zip(&x2).map(|(a, b)| a + b).collect();
+    let (c, _) = srrc(&[x1, x2], &y);
+    assert!((c[0].unwrap() - c[1].unwrap()).abs() < 0.05 && c[0].unwrap() > 0.6, "{c:?}");
+}
+
+#[test]
+fn one_error_source_gets_the_whole_index() {
+    // Only accelerometer 1's bias varies: the nominal-compensation drift depends on it alone.
+    let text = r#"
+name = "one_source"
+seed = 3
+trials_per_cell = 200
+[errors]
+bias_mg = { dist = "normal", sigma = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0] }
+[noise]
+white_density_ug_per_sqrt_hz = 50.0
+[schedule]
+preset = "hung_lee_2006"
+step_duration_s = 0.2
+[trajectory]
+kind = "rest"
+[navigation]
+step_s = 0.05
+horizons_s = [2.0]
+compensations = ["nominal"]
+"#;
+    let dir = tempfile::tempdir().unwrap();
+    let cfg_path = write_config(dir.path(), "one.toml", text);
+    let cfg = McConfig::load(&cfg_path).unwrap();
+    let out = dir.path().join("out");
+    run(&cfg, &cfg_path, &opts(&out, 2, (0, 1)), &Silent).unwrap();
+    let rows = gfcal::mc::sensitivity::sensitivity(&out, 1000).unwrap();
+    for metric in ["rate_err_rad_s", "attitude_err_rad", "velocity_err_m_s"] {
+        let column = format!("nominal_{metric}_at_2s");
+        let mine: Vec<_> = rows.iter().filter(|r| r.output == column).collect();
+        assert_eq!(mine.len(), 1, "{column}: only |a1.bias| varies: {mine:?}");
+        assert_eq!(mine[0].input, "|a1.bias|");
+        assert!(mine[0].srrc > 0.99 && mine[0].r2 > 0.98, "{:?}", mine[0]);
+    }
+    // Through the command: the CSV is written.
+    let o = gfcal().args(["sensitivity", out.to_str().unwrap()]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let csv = std::fs::read_to_string(out.join("sensitivity.csv")).unwrap();
+    assert!(csv.starts_with("cell,output,input,srrc,r2\n") && csv.contains("\"|a1.bias|\""));
+}
