@@ -1,6 +1,6 @@
 //! The summary of a run, computed from its Parquet files part by part (memory flat whatever the
-//! trial count): per cell and parameter the bias, RMSE, Cramer-Rao sigma, their ratio and the
-//! coverage of the estimator's 95% interval; per cell and drift column the median and 95th
+//! trial count): per cell and parameter the bias, RMSE, RMS Cramer-Rao sigma, the RMS of the
+//! normalised error `error / crb_sigma` (`ratio`) and the coverage of the estimator's 95% interval; per cell and drift column the median and 95th
 //! percentile (from a log-spaced histogram, 500 bins per decade: within 0.5%). A diverged
 //! navigation (+inf) counts as larger than any value; a missing one (NaN: no estimate) is left out.
 
@@ -23,7 +23,9 @@ pub struct ParameterSummary {
     pub rmse: f64,
     /// Root-mean-square Cramer-Rao sigma over the trials.
     pub crb_sigma: f64,
-    /// `rmse / crb_sigma`.
+    /// Root-mean-square of each trial's `error / crb_sigma`: about 1 for an efficient estimator,
+    /// however much the bound varies between trials (it equals `rmse / crb_sigma` when the bound
+    /// is the same in every trial).
     pub ratio: f64,
     /// Fraction of trials with `|error| <= 1.96 estimated_sigma`.
     pub coverage_95: f64,
@@ -58,6 +60,8 @@ struct Acc {
     sum2: f64,
     crb2: f64,
     n_crb: u64,
+    z2: f64,
+    n_z: u64,
     covered: u64,
     n_cov: u64,
 }
@@ -165,6 +169,10 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
                 if c.is_finite() {
                     a.n_crb += 1;
                     a.crb2 += c * c;
+                    if c > 0.0 && e.is_finite() {
+                        a.n_z += 1;
+                        a.z2 += (e / c).powi(2);
+                    }
                 }
             }
         }
@@ -239,7 +247,7 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
                 bias: if a.n > 0 { a.sum / n } else { f64::NAN },
                 rmse: if a.n > 0 { rmse } else { f64::NAN },
                 crb_sigma: if a.n_crb > 0 { crb } else { f64::NAN },
-                ratio: if a.n > 0 && crb > 0.0 { rmse / crb } else { f64::NAN },
+                ratio: if a.n_z > 0 { (a.z2 / a.n_z as f64).sqrt() } else { f64::NAN },
                 coverage_95: if a.n_cov > 0 { a.covered as f64 / a.n_cov as f64 } else { f64::NAN },
             }
         })

@@ -139,15 +139,18 @@ fn summary_matches_the_parameters_table() {
     assert_eq!(s.trials, 120);
     assert_eq!(s.parameters.len(), 4 * 42);
     // Recompute one RMSE by hand from the Parquet rows.
-    let mut errs = Vec::new();
+    let (mut errs, mut z2) = (Vec::new(), 0.0);
     for (_, batches) in table(&out, "parameters") {
         for b in batches {
             let cell = b.column_by_name("cell").unwrap().as_any().downcast_ref::<arrow_array::UInt32Array>().unwrap();
             let name = b.column_by_name("name").unwrap().as_any().downcast_ref::<arrow_array::StringArray>().unwrap();
             let err = b.column_by_name("error").unwrap().as_any().downcast_ref::<arrow_array::Float64Array>().unwrap();
+            let crb =
+                b.column_by_name("crb_sigma").unwrap().as_any().downcast_ref::<arrow_array::Float64Array>().unwrap();
             for i in 0..b.num_rows() {
                 if cell.value(i) == 1 && name.value(i) == "a3.beta_yx" {
                     errs.push(err.value(i));
+                    z2 += (err.value(i) / crb.value(i)).powi(2);
                 }
             }
         }
@@ -156,6 +159,8 @@ fn summary_matches_the_parameters_table() {
     let rmse = (errs.iter().map(|e| e * e).sum::<f64>() / 30.0).sqrt();
     let row = s.parameters.iter().find(|p| p.cell == 1 && p.name == "a3.beta_yx").unwrap();
     assert!((row.rmse / rmse - 1.0).abs() < 1e-12);
+    // ratio: the RMS of each trial's error / crb_sigma.
+    assert!((row.ratio / (z2 / 30.0f64).sqrt() - 1.0).abs() < 1e-12, "{row:?}");
     assert!(row.ratio > 0.5 && row.ratio < 2.0, "{row:?}");
     let d = s.drift.iter().find(|d| d.cell == 0 && d.column == "nominal_rate_err_rad_s_at_1s").unwrap();
     assert_eq!(d.n, 30);
