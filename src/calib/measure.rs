@@ -17,6 +17,24 @@ pub struct StepStats {
     pub within_ss: Vec<f64>,
 }
 
+impl StepStats {
+    /// No samples yet, for `n` outputs.
+    pub fn empty(n: usize) -> Self {
+        Self { samples: 0, mean: vec![0.0; n], within_ss: vec![0.0; n] }
+    }
+
+    /// Adds one sample of every output (Welford's running mean and sum of squares).
+    pub fn push(&mut self, values: &[f64]) {
+        self.samples += 1;
+        let count = self.samples as f64;
+        for ((v, m), ss) in values.iter().zip(&mut self.mean).zip(&mut self.within_ss) {
+            let delta = v - *m;
+            *m += delta / count;
+            *ss += delta * (v - *m);
+        }
+    }
+}
+
 /// A schedule's measurements, one [`StepStats`] per step, in schedule order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Measurements {
@@ -60,20 +78,16 @@ pub fn simulate<R: Rng + ?Sized>(
         if step.sample_rate_hz != rate_hz {
             generator = generator.resampled(spec, step.sample_rate_hz);
         }
-        let samples = step.samples();
-        // Welford's running mean and sum of squares, per accelerometer.
-        let mut mean = vec![0.0; n];
-        let mut ss = vec![0.0; n];
-        for i in 0..samples {
-            for j in 0..n {
+        let mut stats = StepStats::empty(n);
+        let mut sample = vec![0.0; n];
+        for _ in 0..step.samples() {
+            for (j, v) in sample.iter_mut().enumerate() {
                 let k = truth.sensors[j].scale_factor;
-                let s = quantize(c.mean[j] + k * generator.next_m_s2(rng, j), k.abs() * spec.quantization_m_s2);
-                let delta = s - mean[j];
-                mean[j] += delta / (i + 1) as f64;
-                ss[j] += delta * (s - mean[j]);
+                *v = quantize(c.mean[j] + k * generator.next_m_s2(rng, j), k.abs() * spec.quantization_m_s2);
             }
+            stats.push(&sample);
         }
-        steps.push(StepStats { samples, mean, within_ss: ss });
+        steps.push(stats);
     }
     Measurements { steps }
 }

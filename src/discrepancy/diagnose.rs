@@ -226,6 +226,8 @@ impl<'a> Extended<'a> {
             *reg = vec![vec![0.0; rows]; x.len() - self.layout.len()];
         }
         let (mut static_index, mut spin_index) = (0, 0);
+        // One gradient buffer, sized for the largest effect, reused for every row and effect.
+        let mut grad_buffer = vec![0.0; x.len() - self.layout.len()];
         for (s, step) in self.schedule.steps().iter().enumerate() {
             let motion = &self.motions[s];
             for j in 0..n {
@@ -253,9 +255,10 @@ impl<'a> Extended<'a> {
                 for (c, &off) in self.effects.iter().zip(&self.offsets) {
                     let m = c.effect.parameters(self.statics, self.spins);
                     let applies = c.accelerometer.is_none_or(|a| a == j);
-                    let mut grad = vec![0.0; m];
+                    let grad = &mut grad_buffer[..m];
+                    grad.iter_mut().for_each(|g| *g = 0.0);
                     if applies {
-                        e += c.effect.term(&ctx, &x.as_slice()[off..off + m], &mut grad);
+                        e += c.effect.term(&ctx, &x.as_slice()[off..off + m], grad);
                     }
                     if let Some(reg) = regressors.as_deref_mut() {
                         for (i, gv) in grad.iter().enumerate() {

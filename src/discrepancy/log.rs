@@ -297,18 +297,11 @@ impl CalibrationLog {
             .steps
             .iter()
             .map(|s| {
-                let m = s.samples();
-                let mut mean = vec![0.0; n];
-                let mut ss = vec![0.0; n];
-                for i in 0..m {
-                    for j in 0..n {
-                        let v = s.outputs[i * n + j];
-                        let d = v - mean[j];
-                        mean[j] += d / (i + 1) as f64;
-                        ss[j] += d * (v - mean[j]);
-                    }
+                let mut stats = StepStats::empty(n);
+                for sample in s.outputs.chunks_exact(n) {
+                    stats.push(sample);
                 }
-                StepStats { samples: m, mean, within_ss: ss }
+                stats
             })
             .collect();
         Measurements { steps }

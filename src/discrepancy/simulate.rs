@@ -90,6 +90,9 @@ impl LogSimulation<'_> {
         let mut steps = Vec::with_capacity(self.schedule.len());
         let (mut t0, mut static_index, mut spin_index) = (0.0, 0, 0);
         let positions = self.truth.positions_m(self.array);
+        // One gradient buffer for the effects' terms (the simulation does not use the gradients).
+        let largest = self.effects.iter().map(|a| a.effect.parameters(statics, spins)).max().unwrap_or(0);
+        let mut grad_buffer = vec![0.0; largest];
         for (si, step) in self.schedule.steps().iter().enumerate() {
             if step.sample_rate_hz != rate0 {
                 generator = generator.resampled(&self.noise, step.sample_rate_hz);
@@ -136,8 +139,7 @@ impl LogSimulation<'_> {
                             Scope::PerAccelerometer => &a.values[j * m..(j + 1) * m],
                             Scope::Shared => &a.values[..m],
                         };
-                        let mut grad = vec![0.0; m];
-                        e += a.effect.term(&ctx, p, &mut grad);
+                        e += a.effect.term(&ctx, p, &mut grad_buffer[..m]);
                     }
                     let k = s.scale_factor;
                     let out = k * (s.bias_m_s2 + ctx.u_m_s2 + e + generator.next_m_s2(rng, j));
