@@ -19,6 +19,7 @@ pub mod io;
 pub mod mc;
 pub mod motion;
 pub mod nav;
+pub mod report;
 pub mod rng;
 pub mod sensor;
 pub mod units;

@@ -103,6 +103,12 @@ enum Command {
         #[arg(long, default_value_t = 20000)]
         max_trials: usize,
     },
+    /// Write a run's report: DIR/report.html (self-contained, plots inline) and the plots as SVG
+    /// files in DIR/report/.
+    Report {
+        /// The run's output folder.
+        dir: PathBuf,
+    },
     /// Recompute a run's summary (summary.csv) from its Parquet files.
     Summarize {
         /// The run's output folder.
@@ -164,6 +170,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             runs::run(&config, out, resume, force, shard.as_deref(), threads, progress_interval_s)
         }
         Command::Summarize { dir } => runs::summarize(&dir),
+        Command::Report { dir } => runs::report(&dir),
         Command::Sensitivity { dir, max_trials } => runs::sensitivity(&dir, max_trials),
         Command::SimulateLog { config, out } => commands::simulate_log(&config, &out),
         Command::Diagnose { log, array, json, alpha, reference_temp_c } => {

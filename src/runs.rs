@@ -195,3 +195,23 @@ pub fn sensitivity(dir: &Path, max_trials: usize) -> anyhow::Result<()> {
     eprintln!("wrote {}", path.display());
     Ok(())
 }
+
+pub fn report(dir: &Path) -> anyhow::Result<()> {
+    use gfcal::report::ReportError;
+    let (report, written) = gfcal::report::run::write_run_report(dir).map_err(|e| match e {
+        ReportError::Input { .. } => anyhow::Error::new(InputError::Other(e.to_string())),
+        other => anyhow::Error::new(other),
+    })?;
+    for note in &report.notes {
+        eprintln!("gfcal: note: {note}");
+    }
+    println!(
+        "wrote {} ({} figures, {} data points) and {} SVG files in {}",
+        dir.join("report.html").display(),
+        report.figures.len(),
+        report.figures.iter().map(|f| f.data_points).sum::<usize>(),
+        written.len().saturating_sub(1),
+        dir.join("report").display()
+    );
+    Ok(())
+}

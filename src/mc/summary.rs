@@ -1,7 +1,7 @@
 //! The summary of a run, computed from its Parquet files part by part (memory flat whatever the
 //! trial count): per cell and parameter the bias, RMSE, RMS Cramer-Rao sigma, the RMS of the
 //! normalised error `error / crb_sigma` (`ratio`) and the coverage of the estimator's 95% interval; per cell and drift column the median and 95th
-//! percentile (from a log-spaced histogram, 500 bins per decade: within 0.5%). A diverged
+//! percentile and 5th percentile (from a log-spaced histogram, 500 bins per decade: within 0.5%). A diverged
 //! navigation (+inf) counts as larger than any value; a missing one (NaN: no estimate) is left out.
 
 use std::collections::BTreeMap;
@@ -43,6 +43,8 @@ pub struct DriftSummary {
     pub diverged: u64,
     pub median: f64,
     pub p95: f64,
+    /// 5th percentile.
+    pub p05: f64,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -200,6 +202,7 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
                     diverged: h.infinite,
                     median: h.quantile(0.5),
                     p95: h.quantile(0.95),
+                    p05: h.quantile(0.05),
                 });
             }
         }
@@ -258,17 +261,18 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
 /// The summary as one CSV table (`table` is `parameter` or `drift`; empty fields where a
 /// statistic does not apply).
 pub fn summary_csv(s: &Summary) -> String {
-    let mut out = String::from("table,cell,name,unit,n,bias,rmse,crb_sigma,ratio,coverage_95,diverged,median,p95\n");
+    let mut out =
+        String::from("table,cell,name,unit,n,bias,rmse,crb_sigma,ratio,coverage_95,diverged,median,p95,p05\n");
     for p in &s.parameters {
         out.push_str(&format!(
-            "parameter,{},{},{},{},{:e},{:e},{:e},{:e},{:e},,,\n",
+            "parameter,{},{},{},{},{:e},{:e},{:e},{:e},{:e},,,,\n",
             p.cell, p.name, p.unit, p.n, p.bias, p.rmse, p.crb_sigma, p.ratio, p.coverage_95
         ));
     }
     for d in &s.drift {
         out.push_str(&format!(
-            "drift,{},{},{},{},,,,,,{},{:e},{:e}\n",
-            d.cell, d.column, d.unit, d.n, d.diverged, d.median, d.p95
+            "drift,{},{},{},{},,,,,,{},{:e},{:e},{:e}\n",
+            d.cell, d.column, d.unit, d.n, d.diverged, d.median, d.p95, d.p05
         ));
     }
     out

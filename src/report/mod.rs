@@ -1,0 +1,52 @@
+//! Reports a person can look at: `gfcal report DIR` (a run) and `gfcal diagnose --report`
+//! (a diagnosis). Each is one self-contained HTML file with its plots inline as SVG (no scripts,
+//! no network), plus the same plots as separate SVG files.
+
+pub mod html;
+pub mod plot;
+pub mod run;
+
+use std::path::PathBuf;
+
+use crate::io::parquet::ParquetIoError;
+use crate::units::{M_PER_MM, M_S2_PER_MG};
+
+pub use plot::{AxisScale, Figure, Item, Panel, PlotError, render};
+
+/// Why a report could not be made.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ReportError {
+    /// The folder or file given is not what a report reads.
+    #[error("{path}: {problem}")]
+    Input { path: PathBuf, problem: String },
+    #[error(transparent)]
+    Parquet(#[from] ParquetIoError),
+    #[error(transparent)]
+    Plot(#[from] PlotError),
+    #[error("cannot write {path}: {source}")]
+    Write { path: PathBuf, source: std::io::Error },
+}
+
+/// Display unit of a parameter given its SI unit, and the factor from SI to it: bias in mg,
+/// scale factor in ppm, misalignment in mrad, location in mm.
+pub fn display_unit(si_unit: &str) -> (&'static str, f64) {
+    match si_unit {
+        "m/s^2" => ("mg", 1.0 / M_S2_PER_MG),
+        "1" => ("ppm", 1e6),
+        "rad" => ("mrad", 1e3),
+        "m" => ("mm", 1.0 / M_PER_MM),
+        _ => ("SI", 1.0),
+    }
+}
+
+/// The kind of a parameter from its SI unit, for grouping plots.
+pub fn kind_of_unit(si_unit: &str) -> &'static str {
+    match si_unit {
+        "m/s^2" => "bias",
+        "1" => "scale factor",
+        "rad" => "misalignment",
+        "m" => "location",
+        _ => "other",
+    }
+}
