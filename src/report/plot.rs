@@ -155,6 +155,17 @@ pub struct Figure {
     pub svg: String,
     /// Finite data points drawn, over all panels.
     pub data_points: usize,
+    /// Each panel's title, x-axis title, y-axis title and data points drawn.
+    pub panels: Vec<PanelInfo>,
+}
+
+/// What a drawn panel shows, for checking a figure without parsing its SVG.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PanelInfo {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    pub data_points: usize,
 }
 
 /// Maps values to drawing coordinates (log10 on a log axis); `None` for what cannot be drawn.
@@ -200,17 +211,28 @@ fn padded(values: impl Iterator<Item = f64>, log: bool, include_zero: bool) -> O
         let w = if log { 0.5 } else { 0.5 * lo.abs().max(1e-12) };
         return Some((lo - w, hi + w));
     }
+    // A log axis spans at least a decade, so that small relative differences do not look large.
+    if log && hi - lo < 1.0 {
+        let mid = 0.5 * (lo + hi);
+        return Some((mid - 0.5, mid + 0.5));
+    }
     let pad = 0.05 * (hi - lo);
     Some((if include_zero && !log && lo == 0.0 { 0.0 } else { lo - pad }, hi + pad))
 }
 
-/// Tick label of a drawn coordinate.
-fn tick(v: f64, log: bool) -> String {
-    let value = if log { 10f64.powf(v) } else { v };
-    if !log && v.abs() < 1e-12 {
+/// Tick label of a drawn coordinate on an axis spanning `range`: enough significant digits to
+/// tell neighbouring ticks apart.
+fn tick(v: f64, log: bool, range: (f64, f64)) -> String {
+    if log {
+        return significant(10f64.powf(v), 3);
+    }
+    let span = (range.1 - range.0).abs();
+    if v.abs() < 1e-9 * span {
         return "0".into();
     }
-    significant(value, 3)
+    let extent = range.0.abs().max(range.1.abs());
+    let digits = (2.0 + (extent / span).log10().ceil()).clamp(2.0, 12.0) as usize;
+    significant(v, digits)
 }
 
 fn draw_error(figure: &str, e: impl std::fmt::Display) -> PlotError {
@@ -253,6 +275,15 @@ pub fn render(
         caption: caption.to_string(),
         svg,
         data_points: panels.iter().map(Panel::data_points).sum(),
+        panels: panels
+            .iter()
+            .map(|p| PanelInfo {
+                title: p.title.clone(),
+                x_label: p.x_label.clone(),
+                y_label: p.y_label.clone(),
+                data_points: p.data_points(),
+            })
+            .collect(),
     })
 }
 
@@ -294,11 +325,10 @@ fn draw_panel(p: &Panel, area: &Area<'_>) -> Result<(), Box<dyn std::error::Erro
     };
     let (y0, y1) = padded(ys.iter().copied(), t.y_log, has_bars).ok_or("no y values")?;
     let n_categories = p.categories.as_ref().map(|c| c.len()).unwrap_or(0);
-    let long_names = p.categories.as_ref().is_some_and(|c| c.len() > 8);
     let mut chart = ChartBuilder::on(area)
         .caption(&p.title, ("sans-serif", 15))
         .margin(8)
-        .x_label_area_size(if long_names { 70 } else { 42 })
+        .x_label_area_size(42)
         .y_label_area_size(62)
         .build_cartesian_2d(x0..x1, y0..y1)?;
     let x_fmt = |v: &f64| match &p.categories {
@@ -310,9 +340,9 @@ fn draw_panel(p: &Panel, area: &Area<'_>) -> Result<(), Box<dyn std::error::Erro
                 String::new()
             }
         }
-        None => tick(*v, t.x_log),
+        None => tick(*v, t.x_log, (x0, x1)),
     };
-    let y_fmt = |v: &f64| tick(*v, t.y_log);
+    let y_fmt = |v: &f64| tick(*v, t.y_log, (y0, y1));
     let mut mesh = chart.configure_mesh();
     mesh.x_desc(p.x_label.as_str())
         .y_desc(p.y_label.as_str())
@@ -320,11 +350,11 @@ fn draw_panel(p: &Panel, area: &Area<'_>) -> Result<(), Box<dyn std::error::Erro
         .y_label_formatter(&y_fmt)
         .axis_desc_style(("sans-serif", 13))
         .light_line_style(WHITE.mix(0.0));
+    mesh.y_labels(6).label_style(("sans-serif", 10));
     if n_categories > 0 {
         mesh.x_labels(n_categories).disable_x_mesh();
-        if long_names {
-            mesh.x_label_style(("sans-serif", 10).into_font().transform(FontTransform::Rotate90));
-        }
+    } else {
+        mesh.x_labels(6);
     }
     mesh.draw()?;
     let mut legend = false;
@@ -376,6 +406,9 @@ fn draw_panel(p: &Panel, area: &Area<'_>) -> Result<(), Box<dyn std::error::Erro
                 let base = if t.y_log { y0 } else { 0.0f64.clamp(y0, y1) };
                 let series = chart.draw_series(bars.iter().filter_map(|b| {
                     let (xa, xb, y) = (t.x(b.0)?, t.x(b.1)?, t.y(b.2)?);
+                    if y == base {
+                        return None;
+                    }
                     Some(Rectangle::new([(xa, base), (xb, y)], col.mix(0.75).filled()))
                 }))?;
                 if let Some(l) = label {

@@ -171,10 +171,10 @@ fn error_figure(cfg: &McConfig, c: usize, sample: &Sample) -> Result<Option<Figu
         }
         n_used = n_used.max(rows.len());
         let crbs: Vec<f64> = rows.iter().map(|r| r[3] * f).filter(|s| s.is_finite() && *s > 0.0).collect();
-        let rms_crb =
-            if crbs.is_empty() { 0.0 } else { (crbs.iter().map(|s| s * s).sum::<f64>() / crbs.len() as f64).sqrt() };
-        let mad = 1.4826 * median(errs.iter().map(|e| (e - median(errs.clone())).abs()).collect());
-        let mut range = 4.0 * rms_crb.max(mad);
+        let centre = median(errs.clone());
+        let mad = 1.4826 * median(errs.iter().map(|e| (e - centre).abs()).collect());
+        // The median bound, not the RMS: a weak parameter's bound is huge in a few trials.
+        let mut range = 4.0 * median(crbs.clone()).max(mad);
         if !(range.is_finite() && range > 0.0) {
             range = errs.iter().fold(0.0f64, |m, e| m.max(e.abs())).max(1e-12);
         }
@@ -301,7 +301,7 @@ fn identifiability_figure(cfg: &McConfig, summary: &Summary) -> Result<Option<Fi
             String::new()
         }
     );
-    Ok(Some(render("identifiability", "Identifiability", &caption, &panels, 2, (620, 360))?))
+    Ok(Some(render("identifiability", "Identifiability", &caption, &panels, 1, (1200, 330))?))
 }
 
 /// Median and 5-95% band of every drift metric against horizon, per compensation.
@@ -399,15 +399,33 @@ fn location_figure(cfg: &McConfig, samples: &[Sample], summary: &Summary) -> Res
                 strong_pts.extend(pts);
             }
         }
-        let all: Vec<f64> =
-            strong_pts.iter().chain(&weak_pts).flat_map(|p| [p.0, p.1]).filter(|v: &f64| v.is_finite()).collect();
-        if all.is_empty() {
+        // Shown within +-limit: twice the largest true value, or the 95th percentile of the
+        // recovered magnitudes if larger (a weak component can be off by metres when the
+        // misalignment that reveals it is near zero); what lies beyond is counted in the title.
+        let max_true =
+            strong_pts.iter().chain(&weak_pts).map(|p| p.0.abs()).filter(|v| v.is_finite()).fold(0.0, f64::max);
+        let mut recovered: Vec<f64> =
+            strong_pts.iter().chain(&weak_pts).map(|p| p.1.abs()).filter(|v| v.is_finite()).collect();
+        recovered.sort_by(f64::total_cmp);
+        let p95 = recovered.get((0.95 * recovered.len() as f64) as usize).copied().unwrap_or(0.0);
+        let limit = (2.0 * max_true).max(p95);
+        let before = strong_pts.len() + weak_pts.len();
+        let inside = |p: &(f64, f64)| p.0.abs() <= limit && p.1.abs() <= limit;
+        strong_pts.retain(inside);
+        weak_pts.retain(inside);
+        let beyond = before - strong_pts.len() - weak_pts.len();
+        let all: Vec<f64> = strong_pts.iter().chain(&weak_pts).map(|p| p.0).collect();
+        if all.is_empty() || !(limit > 0.0) {
             continue;
         }
         let lo = all.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = all.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         let mut panel = Panel::new(
-            format!("cell {c}: {}", describe(cell)),
+            format!(
+                "cell {c}: {}{}",
+                describe(cell),
+                if beyond > 0 { format!(" ({beyond} beyond +-{} mm)", sig(limit, 2)) } else { String::new() }
+            ),
             "true location error [mm]",
             "recovered location error [mm]",
         )
@@ -454,11 +472,14 @@ fn sensitivity_figure(cfg: &McConfig, c: usize, rows: &[SensitivityRow]) -> Resu
             }
             mine.sort_by(|a, b| b.srrc.abs().total_cmp(&a.srrc.abs()));
             mine.truncate(8);
-            let names: Vec<String> = mine.iter().map(|r| r.input.clone()).collect();
+            // `|error a1.dz|` -> `a1.dz`: the axis title says which magnitude.
+            let names: Vec<String> =
+                mine.iter().map(|r| r.input.trim_matches('|').trim_start_matches("error ").to_string()).collect();
             let bars: Vec<(f64, f64, f64)> =
                 mine.iter().enumerate().map(|(x, r)| (x as f64 - 0.35, x as f64 + 0.35, r.srrc)).collect();
+            let input = if comp == "nominal" { "input: |true value|" } else { "input: |estimation error|" };
             panels.push(
-                Panel::new(format!("{col} (R^2 {:.2})", mine[0].r2), "input", "SRRC [1]")
+                Panel::new(format!("{col} (R^2 {:.2})", mine[0].r2), input, "SRRC [1]")
                     .categorical(names)
                     .with(Item::Bars { label: None, bars, colour: if comp == "nominal" { 0 } else { 1 } }),
             );
@@ -480,7 +501,7 @@ fn sensitivity_figure(cfg: &McConfig, c: usize, rows: &[SensitivityRow]) -> Resu
         &caption,
         &panels,
         4,
-        (430, 330),
+        (480, 300),
     )?))
 }
 

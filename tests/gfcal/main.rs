@@ -10,3 +10,4 @@ mod misalignment;
 mod navigation;
 mod noise;
 mod reference;
+mod report;

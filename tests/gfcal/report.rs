@@ -1,0 +1,120 @@
+//! Reports: `gfcal report DIR` renders for the quickstart run, every plot has data and axis titles
+//! with units; weak parameters are marked; bad folders are refused.
+
+use std::path::Path;
+use std::process::Command;
+
+use gfcal::mc::{McConfig, RunOptions, Silent, run};
+use gfcal::report::Figure;
+use gfcal::report::run::write_run_report;
+
+/// Runs `text` (a run config) into `dir/out` on 2 threads.
+fn run_config(dir: &Path, text: &str) -> std::path::PathBuf {
+    let path = dir.join("config.toml");
+    std::fs::write(&path, text).unwrap();
+    let cfg = McConfig::load(&path).unwrap();
+    let out = dir.join("out");
+    let opts = RunOptions { out: out.clone(), resume: false, force: false, shard: (0, 1), threads: Some(2) };
+    run(&cfg, &path, &opts, &Silent).unwrap();
+    out
+}
+
+/// Every panel has data and both axis titles name a unit in brackets, and the SVG shows them.
+pub fn check_figure(f: &Figure) {
+    assert!(f.data_points > 0, "{}: no data", f.name);
+    assert!(!f.panels.is_empty(), "{}: no panels", f.name);
+    for p in &f.panels {
+        assert!(p.data_points > 0, "{} / {}: empty panel", f.name, p.title);
+        for label in [&p.x_label, &p.y_label] {
+            if label.starts_with("input") || label == "parameter" || label == "step" || label == "model" {
+                // A categorical axis: its ticks name the categories.
+                continue;
+            }
+            let unit = label.rsplit_once(" [").map(|(_, u)| u.trim_end_matches(']')).unwrap_or("");
+            assert!(!unit.is_empty() && label.ends_with(']'), "{} / {}: axis `{label}` has no unit", f.name, p.title);
+            assert!(f.svg.contains(label.as_str()), "{}: axis title `{label}` not drawn", f.name);
+        }
+    }
+    // Data are drawn as SVG shapes, not only the frame (lines, circles, polygons, or bars).
+    let shapes = ["<polyline", "<circle", "<polygon"].iter().map(|s| f.svg.matches(s).count()).sum::<usize>()
+        + f.svg.matches("<rect").count().saturating_sub(1);
+    assert!(shapes > 0, "{}: nothing drawn", f.name);
+}
+
+fn check_page(html: &str, figures: &[Figure]) {
+    assert!(html.starts_with("<!DOCTYPE html>"));
+    assert!(!html.contains("<script"), "no scripts");
+    assert!(!html.contains("src=\"http") && !html.contains("href=\"http") && !html.contains("url(http"), "no network");
+    for f in figures {
+        assert!(html.contains(f.svg.trim()), "{} is not inline", f.name);
+    }
+}
+
+#[test]
+fn report_renders_for_the_quickstart_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/quickstart.toml"))
+        .unwrap()
+        .replace("trials_per_cell = 20000", "trials_per_cell = 600");
+    let out = run_config(tmp.path(), &text);
+    let (report, written) = write_run_report(&out).unwrap();
+    let names: Vec<&str> = report.figures.iter().map(|f| f.name.as_str()).collect();
+    for want in ["identifiability", "location_recovery", "errors_cell0", "drift_cell0", "sensitivity_cell0"] {
+        assert!(names.contains(&want), "figure {want} missing from {names:?}");
+    }
+    assert!(report.notes.is_empty(), "{:?}", report.notes);
+    for f in &report.figures {
+        check_figure(f);
+        let file = out.join("report").join(format!("{}.svg", f.name));
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), f.svg);
+    }
+    assert_eq!(written.len(), report.figures.len() + 1);
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    check_page(&html, &report.figures);
+    // 42 histograms of the cube's parameters, 4 drift metrics, 4 identifiability kinds.
+    let panels = |n: &str| report.figures.iter().find(|f| f.name == n).map(|f| f.panels.len()).unwrap_or(0);
+    assert_eq!(panels("errors_cell0"), 42);
+    assert_eq!(panels("drift_cell0"), 4);
+    assert_eq!(panels("identifiability"), 4);
+    // The paper schedule's six blind location components are the weak ones, named in the
+    // recovery plot and highlighted in the table.
+    let recovery = report.figures.iter().find(|f| f.name == "location_recovery").unwrap();
+    assert!(recovery.svg.contains("weak: a1.dz, a2.dy, a3.dx, a4.dx, a5.dy, a6.dz"), "weak set");
+    assert_eq!(html.matches("<tr class=\"weak\">").count(), 6);
+}
+
+#[test]
+fn report_marks_weak_parameters_only_on_the_paper_schedule() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/hung_lee_2006.toml"))
+        .unwrap()
+        .replace("trials_per_cell = 1000", "trials_per_cell = 60")
+        .replace("horizons_s = [1.0, 2.0, 5.0, 10.0]", "horizons_s = [0.5, 1.0]")
+        .replace("step_s = 0.01", "step_s = 0.05");
+    let out = run_config(tmp.path(), &text);
+    let (report, _) = write_run_report(&out).unwrap();
+    for f in &report.figures {
+        check_figure(f);
+    }
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    check_page(&html, &report.figures);
+    // Two cells: the paper schedule's six weak rows, none on the augmented schedule.
+    let (paper, augmented) = html.split_once("Cell 1:").unwrap();
+    assert_eq!(paper.matches("<tr class=\"weak\">").count(), 6);
+    assert_eq!(augmented.matches("<tr class=\"weak\">").count(), 0);
+    let ident = report.figures.iter().find(|f| f.name == "identifiability").unwrap();
+    assert!(ident.svg.contains("schedule.preset = hung_lee_2006_augmented"));
+    // Fixed true errors: nothing varies for the nominal compensation, the estimated one's
+    // errors do, so the sensitivity figures exist.
+    assert!(report.figures.iter().any(|f| f.name == "sensitivity_cell1"));
+}
+
+#[test]
+fn report_of_a_folder_without_a_run_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_gfcal")).args(["report"]).arg(tmp.path()).output().unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("run.json") && err.contains("is this a gfcal run folder"), "{err}");
+    assert!(!tmp.path().join("report.html").exists());
+}
