@@ -415,7 +415,7 @@ fn location_figure(cfg: &McConfig, samples: &[Sample], summary: &Summary) -> Res
         weak_pts.retain(inside);
         let beyond = before - strong_pts.len() - weak_pts.len();
         let all: Vec<f64> = strong_pts.iter().chain(&weak_pts).map(|p| p.0).collect();
-        if all.is_empty() || !(limit > 0.0) {
+        if all.is_empty() || limit.is_nan() || limit <= 0.0 {
             continue;
         }
         let lo = all.iter().copied().fold(f64::INFINITY, f64::min);
