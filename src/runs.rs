@@ -177,6 +177,25 @@ pub fn sensitivity(dir: &Path, max_trials: usize) -> anyhow::Result<()> {
     }
     let path = dir.join("sensitivity.csv");
     gfcal::io::write_atomic(&path, csv.as_bytes()).with_context(|| format!("cannot write {}", path.display()))?;
+    let cfg = gfcal::report::run::load_config(dir).map_err(|e| InputError::Other(e.to_string()))?;
+    if cfg.cells.iter().any(|c| c.saltelli.is_some()) {
+        let rows = gfcal::mc::sobol::sobol(dir, &cfg).context("cannot compute the Sobol' indices")?;
+        let sobol_path = dir.join("sobol.csv");
+        gfcal::io::write_atomic(&sobol_path, gfcal::mc::sobol::sobol_csv(&rows).as_bytes())
+            .with_context(|| format!("cannot write {}", sobol_path.display()))?;
+        println!("Largest total Sobol' indices per drift column at the last horizon (first order in brackets):");
+        let mut outputs: Vec<(u32, String)> = rows.iter().map(|r| (r.cell, r.output.clone())).collect();
+        outputs.dedup();
+        for (cell, output) in outputs {
+            let mut mine: Vec<&gfcal::mc::sobol::SobolRow> =
+                rows.iter().filter(|r| r.cell == cell && r.output == output).collect();
+            mine.sort_by(|a, b| b.total.total_cmp(&a.total));
+            let top: Vec<String> =
+                mine.iter().take(3).map(|r| format!("{} {:.2} ({:.2})", r.input, r.total, r.first_order)).collect();
+            println!("  cell {cell} {output:<40} {}", top.join(", "));
+        }
+        eprintln!("wrote {}", sobol_path.display());
+    }
     // The three largest drivers of each output.
     let mut outputs: Vec<(u32, String)> = rows.iter().map(|r| (r.cell, r.output.clone())).collect();
     outputs.dedup();

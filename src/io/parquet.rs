@@ -17,6 +17,7 @@ use parquet::file::metadata::KeyValue;
 use parquet::file::properties::WriterProperties;
 
 use crate::mc::config::{FactorValue, McConfig};
+use crate::mc::sample::SaltelliRow;
 use crate::mc::trial::{DRIFT_METRICS, TrialRecord};
 
 /// Why a Parquet file could not be written or read.
@@ -64,6 +65,10 @@ pub fn trials_schema(cfg: &McConfig) -> SchemaRef {
         field("residual_sigma_m_s2", DataType::Float64, "m/s^2"),
         field("message", DataType::Utf8, "1"),
     ]);
+    if cfg.cells[0].saltelli.is_some() {
+        fields.push(field("saltelli_sample", DataType::UInt64, "1"));
+        fields.push(field("saltelli_matrix", DataType::Utf8, "1"));
+    }
     let nav = &cfg.cells[0].navigation;
     for comp in &nav.compensations {
         for h in &nav.horizons_s {
@@ -143,6 +148,21 @@ pub fn trials_batch(cfg: &McConfig, records: &[TrialRecord]) -> Result<RecordBat
     cols.push(floats(&|r| r.condition_number));
     cols.push(floats(&|r| r.residual_sigma_m_s2));
     cols.push(strings(&|r| r.message.clone()));
+    if cfg.cells[0].saltelli.is_some() {
+        let role = |r: &TrialRecord| {
+            let c = cell(r);
+            c.saltelli.as_ref().map(|s| (s.role(r.trial), s, c))
+        };
+        cols.push(Arc::new(UInt64Array::from(
+            records.iter().map(|r| role(r).map(|((j, _), ..)| j).unwrap_or(0)).collect::<Vec<_>>(),
+        )));
+        cols.push(strings(&|r| match role(r) {
+            Some(((_, SaltelliRow::A), ..)) => "A".to_string(),
+            Some(((_, SaltelliRow::B), ..)) => "B".to_string(),
+            Some(((_, SaltelliRow::AB(i)), s, c)) => format!("AB:{}", c.layout.name(s.inputs[i])),
+            None => String::new(),
+        }));
+    }
     let n_drift = records.first().map(|r| r.drift.len()).unwrap_or(0);
     for d in 0..n_drift {
         cols.push(floats(&|r| r.drift[d]));

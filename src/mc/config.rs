@@ -42,6 +42,13 @@
 //! scale = "log"                   # or "linear"
 //! ```
 //!
+//! ```toml
+//! [sensitivity]                   # optional: Sobol' indices of the varying error parameters
+//! design = "saltelli"
+//! base_samples = 1000             # trials per cell = base_samples x (varying parameters + 2);
+//!                                 # trials_per_cell must then be left out
+//! ```
+//!
 //! A sweep factor overrides one key of this file (any key, dotted path) for each cell; every cell
 //! is then read and checked as a config of its own, so a bad level is refused before the run
 //! with the factor's key and level named.
@@ -51,7 +58,7 @@ use std::path::Path;
 use serde::Deserialize;
 
 use super::design::{factorial, latin_hypercube, sobol};
-use super::sample::{Dist, ErrorModel};
+use super::sample::{Dist, ErrorModel, Saltelli};
 use crate::array::Array;
 use crate::calib::params::{Form, Layout};
 use crate::calib::schedule::Schedule;
@@ -163,12 +170,28 @@ pub struct SweepSection {
     pub factor: Vec<FactorEntry>,
 }
 
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SensitivityDesign {
+    Saltelli,
+}
+
+/// `[sensitivity]`: sample the error parameters on a Saltelli design, for Sobol' indices.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensitivitySection {
+    pub design: SensitivityDesign,
+    pub base_samples: u64,
+}
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct McFile {
     pub name: Option<String>,
     pub seed: u64,
-    pub trials_per_cell: u64,
+    /// Required, except with a Saltelli design (which sets it).
+    pub trials_per_cell: Option<u64>,
+    pub sensitivity: Option<SensitivitySection>,
     #[serde(default)]
     pub array: ArraySection,
     pub errors: McErrorsSection,
@@ -214,6 +237,8 @@ pub struct Cell {
     pub schedule: Schedule,
     pub calibration: CalibrationSettings,
     pub navigation: McNavigation,
+    /// The Saltelli design of the cell's trials, if the config asks for Sobol' indices.
+    pub saltelli: Option<Saltelli>,
 }
 
 /// A checked run config.
@@ -254,7 +279,20 @@ impl McConfig {
             .try_into()
             .map_err(|e: toml::de::Error| ConfigError::Parse { path: path.to_path_buf(), message: e.to_string() })?;
         let bad = |b: Bad| b.in_file(path);
-        if file.trials_per_cell == 0 {
+        if let Some(s) = &file.sensitivity {
+            if s.base_samples < 2 {
+                return Err(bad(Bad::new("sensitivity.base_samples", "must be at least 2")));
+            }
+            if file.trials_per_cell.is_some() {
+                return Err(bad(Bad::new(
+                    "trials_per_cell",
+                    "is set by the Saltelli design (sensitivity.base_samples x (varying parameters + 2)); remove it",
+                )));
+            }
+        } else if file.trials_per_cell.is_none() {
+            return Err(bad(Bad::new("trials_per_cell", "is missing (or give a [sensitivity] Saltelli design)")));
+        }
+        if file.trials_per_cell == Some(0) {
             return Err(bad(Bad::new("trials_per_cell", "must be at least 1")));
         }
         let trials_per_part = file.output.trials_per_part.unwrap_or(2048);
@@ -302,15 +340,42 @@ impl McConfig {
             })?;
             cells.push(cell);
         }
-        Ok(Self {
-            name,
-            seed: file.seed,
-            trials_per_cell: file.trials_per_cell,
-            trials_per_part,
-            factor_keys,
-            cells,
-            text,
-        })
+        let trials_per_cell = match &file.sensitivity {
+            None => file.trials_per_cell.unwrap_or(1),
+            Some(s) => {
+                let inputs = cells[0].errors.varying(&cells[0].layout);
+                if inputs.is_empty() {
+                    return Err(bad(Bad::new(
+                        "sensitivity",
+                        "no error parameter varies between trials: a Saltelli design has nothing to attribute",
+                    )));
+                }
+                if let Some(c) = cells.iter().find(|c| c.errors.varying(&c.layout) != inputs) {
+                    return Err(bad(Bad::new(
+                        "sensitivity",
+                        format!(
+                            "the sweep cell with {} varies other error parameters than cell 0; a Saltelli design \
+                             needs the same inputs in every cell",
+                            c.factors
+                                .iter()
+                                .map(|(k, v)| format!("{k} = {}", fmt_value(v)))
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        ),
+                    )));
+                }
+                let per_cell = s.base_samples * (inputs.len() as u64 + 2);
+                for (i, c) in cells.iter_mut().enumerate() {
+                    c.saltelli = Some(Saltelli {
+                        base_samples: s.base_samples,
+                        inputs: inputs.clone(),
+                        first_trial: i as u64 * per_cell,
+                    });
+                }
+                per_cell
+            }
+        };
+        Ok(Self { name, seed: file.seed, trials_per_cell, trials_per_part, factor_keys, cells, text })
     }
 }
 
@@ -582,5 +647,6 @@ fn build_cell(f: &McFile, path: &Path, index: usize, factors: Vec<(String, Facto
         schedule,
         calibration,
         navigation: McNavigation { trajectory, step_s, horizons_s, compensations, noise: nav.noise.unwrap_or(false) },
+        saltelli: None,
     })
 }

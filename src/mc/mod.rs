@@ -13,6 +13,7 @@ pub mod design;
 pub mod runner;
 pub mod sample;
 pub mod sensitivity;
+pub mod sobol;
 pub mod summary;
 pub mod trial;
 

@@ -90,7 +90,10 @@ pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Tri
     let g = cell.calibration.gravity_m_s2;
     let p = layout.len();
     let mut rng = trial_rng(seed, trial);
-    let x_true = cell.errors.sample(layout, &mut rng);
+    let x_true = match &cell.saltelli {
+        Some(design) => design.sample(&cell.errors, layout, seed, trial),
+        None => cell.errors.sample(layout, &mut rng),
+    };
     let truth = layout.unpack(&x_true);
     let meas = simulate(&cell.array, &truth, &cell.schedule, &cell.noise, g, &mut rng);
     let estimate: Result<Estimate, String> = match &prepared.refusal {

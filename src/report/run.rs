@@ -7,8 +7,8 @@
 //! - drift against horizon: median and 5-95% band of each drift metric for each compensation,
 //!   log-log, with t, t^2, t^3, t^4 guide lines;
 //! - sensitivity: standardised rank regression coefficients of the error parameters for each
-//!   drift metric at the last horizon, and Sobol' indices with confidence intervals when the run
-//!   used a Saltelli design.
+//!   drift metric at the last horizon, and first-order and total Sobol' indices with bootstrap
+//!   confidence intervals when the run used a Saltelli design (`[sensitivity]` in its config).
 //!
 //! Across cells: the Cramer-Rao sigma of every parameter on a log scale, cells side by side, weak
 //! parameters marked; and recovered against true for every location error.
@@ -31,6 +31,7 @@ use crate::io::csv::significant as sig;
 use crate::io::parquet::{ParquetIoError, drift_column, read_batches};
 use crate::mc::config::{Cell, FactorValue, McConfig};
 use crate::mc::sensitivity::{SensitivityRow, sensitivity};
+use crate::mc::sobol::{SobolRow, sobol};
 use crate::mc::summary::{Summary, summarize};
 use crate::mc::trial::DRIFT_METRICS;
 
@@ -505,6 +506,60 @@ fn sensitivity_figure(cfg: &McConfig, c: usize, rows: &[SensitivityRow]) -> Resu
     )?))
 }
 
+/// First-order and total Sobol' indices with 95% intervals, the eight largest totals per metric.
+fn sobol_figure(cfg: &McConfig, c: usize, rows: &[SobolRow]) -> Result<Option<Figure>, ReportError> {
+    let cell = &cfg.cells[c];
+    let h = *cell.navigation.horizons_s.last().unwrap_or(&1.0);
+    let mut panels = Vec::new();
+    let mut used = 0;
+    for comp in &cell.navigation.compensations {
+        for (metric, _) in DRIFT_METRICS {
+            let col = drift_column(comp.name(), metric, h);
+            let mut mine: Vec<&SobolRow> = rows.iter().filter(|r| r.cell == c as u32 && r.output == col).collect();
+            if mine.is_empty() {
+                continue;
+            }
+            used = mine[0].base_samples;
+            mine.sort_by(|a, b| b.total.total_cmp(&a.total));
+            mine.truncate(8);
+            let names: Vec<String> = mine.iter().map(|r| r.input.clone()).collect();
+            let first = mine
+                .iter()
+                .enumerate()
+                .map(|(x, r)| (x as f64 - 0.12, r.first_order, r.first_order_lo, r.first_order_hi));
+            let total = mine.iter().enumerate().map(|(x, r)| (x as f64 + 0.12, r.total, r.total_lo, r.total_hi));
+            let legend = panels.is_empty();
+            panels.push(
+                Panel::new(format!("log10 {col}"), "input", "Sobol' index [1]")
+                    .categorical(names)
+                    .with(Item::Intervals {
+                        label: legend.then(|| "first order (95% interval)".to_string()),
+                        points: first.collect(),
+                        colour: 0,
+                    })
+                    .with(Item::Intervals {
+                        label: legend.then(|| "total (95% interval)".to_string()),
+                        points: total.collect(),
+                        colour: 1,
+                    }),
+            );
+        }
+    }
+    if panels.is_empty() {
+        return Ok(None);
+    }
+    let caption = format!(
+        "Sobol' indices of the error parameters for log10 of each drift metric at {h} s in cell {c} ({}), from the run's \
+         Saltelli design ({used} base samples): first order (the share of the metric's variance an input explains \
+         alone) and total (with all its interactions), with bootstrap 95% intervals; the eight largest totals per \
+         metric. Total well above first order means the input acts through interactions. For the estimated \
+         compensation the calibration noise is an uncontrolled input: the first-order indices then sum to less \
+         than one.",
+        describe(cell)
+    );
+    Ok(Some(render(&format!("sobol_cell{c}"), &format!("Sobol' indices, cell {c}"), &caption, &panels, 4, (480, 300))?))
+}
+
 fn parameter_table(page: &mut Page, summary: &Summary, c: u32) {
     let weak = weak_parameters(summary, c);
     let rows: Vec<(Vec<String>, bool)> = summary
@@ -547,6 +602,7 @@ pub fn run_report(dir: &Path) -> Result<RunReport, ReportError> {
     let cap = (100_000 / cfg.cells.len()).clamp(200, SAMPLE_PER_CELL);
     let samples = read_samples(dir, cfg.cells.len(), cap)?;
     let sens = sensitivity(dir, SENSITIVITY_TRIALS)?;
+    let sobol_rows = if summary.trials == cfg.total_trials() { sobol(dir, &cfg)? } else { Vec::new() };
     let mut figures = Vec::new();
     let mut notes = Vec::new();
     let mut page = Page::new(&format!("gfcal run report: {}", cfg.name));
@@ -591,6 +647,14 @@ pub fn run_report(dir: &Path) -> Result<RunReport, ReportError> {
             &format!("cell {c} sensitivity (no error parameter varies between trials)"),
             &mut notes,
         );
+        if cell.saltelli.is_some() {
+            add(
+                &mut page,
+                sobol_figure(&cfg, c, &sobol_rows)?,
+                &format!("cell {c} Sobol' indices (the run is incomplete, or too few base samples have every output)"),
+                &mut notes,
+            );
+        }
     }
     page.heading(2, "Config");
     page.pre(&cfg.text);

@@ -236,9 +236,10 @@ fn every_config_in_configs_parses_and_validates() {
         }
         let text = std::fs::read_to_string(&path).unwrap();
         let table: toml::Table = toml::from_str(&text).unwrap();
-        if table.contains_key("effects") || (table.contains_key("seed") && !table.contains_key("trials_per_cell")) {
+        let run = table.contains_key("trials_per_cell") || table.contains_key("sensitivity");
+        if table.contains_key("effects") || (table.contains_key("seed") && !run) {
             gfcal::config::simulate_log::SimulateLogConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
-        } else if table.contains_key("trials_per_cell") {
+        } else if run {
             let cfg = McConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
             assert!(cfg.total_trials() > 0);
         } else if table.contains_key("schedule") {
@@ -253,7 +254,7 @@ fn every_config_in_configs_parses_and_validates() {
         checked += 1;
     }
     assert!(checked >= 8, "{checked} configs");
-    for name in ["quickstart", "hung_lee_2006", "identifiability_sweep", "overnight"] {
+    for name in ["quickstart", "hung_lee_2006", "identifiability_sweep", "overnight", "sobol_indices"] {
         assert!(root.join(format!("{name}.toml")).exists(), "configs/{name}.toml");
     }
     let overnight = McConfig::load(&root.join("overnight.toml")).unwrap();

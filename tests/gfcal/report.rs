@@ -32,7 +32,13 @@ pub fn check_figure(f: &Figure) {
             }
             let unit = label.rsplit_once(" [").map(|(_, u)| u.trim_end_matches(']')).unwrap_or("");
             assert!(!unit.is_empty() && label.ends_with(']'), "{} / {}: axis `{label}` has no unit", f.name, p.title);
-            assert!(f.svg.contains(label.as_str()), "{}: axis title `{label}` not drawn", f.name);
+            let drawn = label
+                .replace('&', "&amp;")
+                .replace('<', "&lt;")
+                .replace('>', "&gt;")
+                .replace('\'', "&apos;")
+                .replace('"', "&quot;");
+            assert!(f.svg.contains(&drawn), "{}: axis title `{label}` not drawn", f.name);
         }
     }
     // Data are drawn as SVG shapes, not only the frame (lines, circles, polygons, or bars).
@@ -117,4 +123,93 @@ fn report_of_a_folder_without_a_run_is_refused() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("run.json") && err.contains("is this a gfcal run folder"), "{err}");
     assert!(!tmp.path().join("report.html").exists());
+}
+
+/// A Saltelli design where only a1.bias matters (a2.bias varies a thousand times less).
+const SALTELLI: &str = r#"
+name = "saltelli"
+seed = 3
+
+[sensitivity]
+design = "saltelli"
+base_samples = 500
+
+[errors]
+bias_mg = { dist = "normal", sigma = [1.0, 0.001, 0.0, 0.0, 0.0, 0.0] }
+
+[noise]
+white_density_ug_per_sqrt_hz = 50.0
+
+[schedule]
+preset = "hung_lee_2006"
+step_duration_s = 0.5
+sample_rate_hz = 100.0
+
+[trajectory]
+kind = "paper_manoeuvre"
+
+[navigation]
+step_s = 0.02
+horizons_s = [0.5, 1.0]
+compensations = ["nominal", "estimated"]
+"#;
+
+#[test]
+fn sobol_indices_give_the_one_error_source_the_whole_index() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = run_config(tmp.path(), SALTELLI);
+    let cfg = gfcal::report::run::load_config(&out).unwrap();
+    // Two inputs: 500 x (2 + 2) trials.
+    assert_eq!(cfg.trials_per_cell, 2000);
+    let rows = gfcal::mc::sobol::sobol(&out, &cfg).unwrap();
+    for metric in ["velocity_err_m_s", "position_err_m"] {
+        let col = format!("nominal_{metric}_at_1s");
+        let get = |input: &str| rows.iter().find(|r| r.output == col && r.input == input).unwrap();
+        let (a1, a2) = (get("a1.bias"), get("a2.bias"));
+        assert_eq!(a1.base_samples, 500);
+        // One input explains everything: S = ST = 1, up to the estimators' sampling error
+        // (about 1/sqrt(500) for the first order).
+        assert!((a1.first_order - 1.0).abs() < 0.12 && (a1.total - 1.0).abs() < 0.05, "{col}: {a1:?}");
+        assert!(a1.first_order_lo <= a1.first_order && a1.first_order <= a1.first_order_hi);
+        assert!(a2.first_order.abs() < 0.01 && a2.total < 0.01, "{col}: {a2:?}");
+    }
+    // The design is in the trials table for an analyst.
+    let batches = gfcal::io::parquet::read_batches(&out.join("trials/part-000000.parquet")).unwrap();
+    let matrix = batches[0].column_by_name("saltelli_matrix").unwrap();
+    let matrix = matrix.as_any().downcast_ref::<arrow_array::StringArray>().unwrap();
+    let first: Vec<&str> = (0..4).map(|i| matrix.value(i)).collect();
+    assert_eq!(first, ["A", "B", "AB:a1.bias", "AB:a2.bias"]);
+    // The report draws them.
+    let (report, _) = write_run_report(&out).unwrap();
+    let sobol = report.figures.iter().find(|f| f.name == "sobol_cell0").expect("Sobol' figure");
+    check_figure(sobol);
+    assert_eq!(sobol.panels.len(), 8);
+}
+
+#[test]
+fn saltelli_design_with_trials_per_cell_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("bad.toml");
+    std::fs::write(&path, SALTELLI.replace("seed = 3", "seed = 3\ntrials_per_cell = 10")).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_gfcal"))
+        .arg("run")
+        .arg(&path)
+        .arg("--out")
+        .arg(tmp.path().join("o"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("bad.toml") && err.contains("trials_per_cell") && err.contains("Saltelli"), "{err}");
+    assert!(!tmp.path().join("o").exists());
+    std::fs::write(&path, SALTELLI.replace("sigma = [1.0, 0.001, 0.0, 0.0, 0.0, 0.0]", "sigma = 0.0")).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_gfcal"))
+        .arg("run")
+        .arg(&path)
+        .arg("--out")
+        .arg(tmp.path().join("o"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no error parameter varies"));
 }
