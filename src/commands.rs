@@ -277,6 +277,7 @@ pub fn diagnose(
     log_path: &Path,
     array: Option<&Path>,
     json: Option<&Path>,
+    report: Option<&Path>,
     alpha: f64,
     temp_ref_c: f64,
 ) -> anyhow::Result<()> {
@@ -429,6 +430,11 @@ pub fn diagnose(
         });
         gfcal::io::write_atomic(path, (serde_json::to_string_pretty(&body)? + "\n").as_bytes())
             .with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!("wrote {}", path.display());
+    }
+    if let Some(path) = report {
+        let r = gfcal::report::diagnosis::diagnosis_report(&log_path.display().to_string(), &log, &d, alpha)?;
+        gfcal::io::write_atomic(path, r.html.as_bytes()).with_context(|| format!("cannot write {}", path.display()))?;
         eprintln!("wrote {}", path.display());
     }
     Ok(())

@@ -87,6 +87,10 @@ enum Command {
         /// Also write the diagnosis as JSON.
         #[arg(long)]
         json: Option<PathBuf>,
+        /// Also write a self-contained HTML report: residuals by step and accelerometer before and
+        /// after each added effect, and the gap after each addition.
+        #[arg(long)]
+        report: Option<PathBuf>,
         /// Familywise significance level of the effect tests.
         #[arg(long, default_value_t = 0.01)]
         alpha: f64,
@@ -173,8 +177,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Report { dir } => runs::report(&dir),
         Command::Sensitivity { dir, max_trials } => runs::sensitivity(&dir, max_trials),
         Command::SimulateLog { config, out } => commands::simulate_log(&config, &out),
-        Command::Diagnose { log, array, json, alpha, reference_temp_c } => {
-            commands::diagnose(&log, array.as_deref(), json.as_deref(), alpha, reference_temp_c)
+        Command::Diagnose { log, array, json, report, alpha, reference_temp_c } => {
+            commands::diagnose(&log, array.as_deref(), json.as_deref(), report.as_deref(), alpha, reference_temp_c)
         }
         Command::Design { config } => commands::design(&config),
         Command::Paper { out, trials, seed, noise_density_ug_per_sqrt_hz } => {

@@ -359,6 +359,19 @@ pub struct Finding {
     pub confounded_with: Option<String>,
 }
 
+/// The model at one point of a diagnosis: the baseline, then after the noise model, then after
+/// each named effect.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stage {
+    /// `baseline`, `noise model: bias_instability on a2`, `+ quadratic_coefficient on a3`, ...
+    pub label: String,
+    /// chi-square per degree of freedom of the step means, and the degrees of freedom.
+    pub gap: f64,
+    pub dof: usize,
+    /// Whitened residual of each step's mean, per accelerometer.
+    pub per_step: Vec<Vec<f64>>,
+}
+
 /// A whole diagnosis.
 #[derive(Debug, Clone)]
 pub struct Diagnosis {
@@ -376,6 +389,8 @@ pub struct Diagnosis {
     /// The gap is still above the noise and no candidate helps.
     pub unmodelled_effect_remains: bool,
     pub per_step_after: Vec<Vec<f64>>,
+    /// The model before and after each addition, in order.
+    pub stages: Vec<Stage>,
 }
 
 /// Settings of a diagnosis.
@@ -512,6 +527,26 @@ pub fn diagnose(
     let mut included: Vec<usize> = Vec::new();
     let mut current = fit_extended(&layout, &schedule, log, &meas, &[], &baseline.estimate.x, sigma, s);
     let gap_before = baseline.chi2_per_dof();
+    let n = array.len();
+    let per_step = |w: &DVector<f64>| -> Vec<Vec<f64>> {
+        (0..schedule.len()).map(|st| (0..n).map(|j| w[st * n + j]).collect()).collect()
+    };
+    let mut stages = vec![Stage {
+        label: "baseline".into(),
+        gap: gap_before,
+        dof: baseline.dof,
+        per_step: baseline.whitened.clone(),
+    }];
+    if !noise_findings.is_empty() {
+        let on: Vec<String> =
+            noise_findings.iter().filter_map(|f| f.accelerometer).map(|j| format!("a{}", j + 1)).collect();
+        stages.push(Stage {
+            label: format!("noise model: bias_instability on {}", on.join(", ")),
+            gap: current.chi2 / current.dof as f64,
+            dof: current.dof,
+            per_step: per_step(&current.whitened),
+        });
+    }
     for f in &mut noise_findings {
         f.gap_after = current.chi2 / current.dof as f64;
     }
@@ -634,6 +669,12 @@ pub fn diagnose(
             p_value: p,
             confounded_with,
         });
+        stages.push(Stage {
+            label: format!("+ {}", c.label()),
+            gap: fit.chi2 / fit.dof as f64,
+            dof: fit.dof,
+            per_step: per_step(&fit.whitened),
+        });
         included.push(ci);
         current = fit;
     }
@@ -641,8 +682,7 @@ pub fn diagnose(
     let effects: Vec<&Candidate> = included.iter().map(|&i| &pool[i]).collect();
     let held_out_after = held_out(&layout, &schedule, log, &meas, &effects, &current.x, sigma, s);
     let p_value_after = p_chi2(current.chi2, current.dof);
-    let n = array.len();
-    let per_step_after = (0..schedule.len()).map(|st| (0..n).map(|j| current.whitened[st * n + j]).collect()).collect();
+    let per_step_after = per_step(&current.whitened);
     Ok(Diagnosis {
         gap_before,
         gap_after: current.chi2 / current.dof as f64,
@@ -654,6 +694,7 @@ pub fn diagnose(
         verdicts,
         baseline,
         per_step_after,
+        stages,
     })
 }
 

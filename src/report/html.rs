@@ -41,15 +41,15 @@ impl Page {
         self.body.push_str(&format!("<pre>{}</pre>\n", escape(text)));
     }
 
-    /// A figure inline, its caption, and the name of its separate SVG file.
-    pub fn figure(&mut self, fig: &Figure, file: &str) {
+    /// A figure inline, its caption, and the name of its separate SVG file if there is one.
+    pub fn figure(&mut self, fig: &Figure, file: Option<&str>) {
         self.body.push_str(&format!(
-            "<figure id=\"{}\">\n{}\n<figcaption><b>{}</b> {} (also <code>{}</code>)</figcaption>\n</figure>\n",
+            "<figure id=\"{}\">\n{}\n<figcaption><b>{}</b> {}{}</figcaption>\n</figure>\n",
             escape(&fig.name),
             fig.svg.trim(),
             escape(&fig.title),
             escape(&fig.caption),
-            escape(file)
+            file.map(|f| format!(" (also <code>{}</code>)", escape(f))).unwrap_or_default()
         ));
     }
 

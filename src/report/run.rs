@@ -621,7 +621,7 @@ pub fn run_report(dir: &Path) -> Result<RunReport, ReportError> {
     }
     let mut add = |page: &mut Page, fig: Option<Figure>, what: &str, notes: &mut Vec<String>| match fig {
         Some(f) => {
-            page.figure(&f, &format!("report/{}.svg", f.name));
+            page.figure(&f, Some(&format!("report/{}.svg", f.name)));
             figures.push(f);
         }
         None => {

@@ -213,3 +213,50 @@ fn saltelli_design_with_trials_per_cell_is_refused() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("no error parameter varies"));
 }
+
+#[test]
+fn diagnosis_report_shows_the_gap_shrink_after_each_effect() {
+    use gfcal::discrepancy::diagnose::{DiagnoseSettings, diagnose};
+    use gfcal::discrepancy::log::CalibrationLog;
+    let tmp = tempfile::tempdir().unwrap();
+    let log_path = tmp.path().join("log.parquet");
+    let html_path = tmp.path().join("diagnosis.html");
+    let gfcal = |args: &[&std::ffi::OsStr]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_gfcal"))
+            .args(args)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    gfcal(&[
+        "simulate-log".as_ref(),
+        "configs/discrepancy_example.toml".as_ref(),
+        "--out".as_ref(),
+        log_path.as_os_str(),
+    ]);
+    gfcal(&["diagnose".as_ref(), log_path.as_os_str(), "--report".as_ref(), html_path.as_os_str()]);
+    let html = std::fs::read_to_string(&html_path).unwrap();
+    // The same diagnosis through the library, to check the figures.
+    let array = gfcal::array::Array::cube(0.1).unwrap();
+    let log = CalibrationLog::read(&log_path, 6).unwrap();
+    let d = diagnose(&log, &array, &gfcal::sensor::ArrayParams::nominal(&array), &DiagnoseSettings::default()).unwrap();
+    let r = gfcal::report::diagnosis::diagnosis_report(&log_path.display().to_string(), &log, &d, 0.01).unwrap();
+    assert_eq!(r.html, html);
+    check_page(&html, &r.figures);
+    for f in &r.figures {
+        check_figure(f);
+    }
+    // Baseline, then the hidden quadratic term on accelerometer 3: the gap falls from well above
+    // the noise to about 1, and the residual panels are one per stage.
+    let labels: Vec<&str> = d.stages.iter().map(|s| s.label.as_str()).collect();
+    assert_eq!(labels, ["baseline", "+ scale_factor_quadratic (accelerometer 3)"]);
+    assert!(d.stages[0].gap > 5.0 && d.stages[1].gap < 1.5, "{:?}", d.stages.iter().map(|s| s.gap).collect::<Vec<_>>());
+    assert_eq!(d.stages[1].per_step, d.per_step_after);
+    assert_eq!(d.stages[0].per_step, d.baseline.whitened);
+    let residuals = r.figures.iter().find(|f| f.name == "residuals").unwrap();
+    assert_eq!(residuals.panels.len(), 2);
+    // Every step of every accelerometer is drawn in each panel.
+    assert!(residuals.panels.iter().all(|p| p.data_points >= log.steps.len() * 6));
+    assert!(html.contains("scale_factor_quadratic"));
+}
