@@ -312,22 +312,49 @@ fn drift_figure(cfg: &McConfig, c: usize, summary: &Summary) -> Result<Option<Fi
     let labels = ["angular-rate error [rad/s]", "attitude error [rad]", "velocity error [m/s]", "position error [m]"];
     let mut panels = Vec::new();
     let mut diverged = Vec::new();
+    let mut floors = Vec::new();
+    let quantiles = |comp: &str, metric: &str| -> Vec<(f64, f64, f64, f64, u64, u64)> {
+        nav.horizons_s
+            .iter()
+            .filter_map(|h| {
+                let col = drift_column(comp, metric, *h);
+                let d = summary.drift.iter().find(|d| d.cell == c as u32 && d.column == col)?;
+                Some((*h, d.p05, d.median, d.p95, d.diverged, d.n))
+            })
+            .collect()
+    };
     for (m, (metric, _)) in DRIFT_METRICS.iter().enumerate() {
         let mut panel =
             Panel::new(labels[m].split(" [").next().unwrap_or(metric), "horizon [s]", labels[m]).log_x().log_y();
         let mut anchor: Option<(f64, f64)> = None;
+        // The smallest median of the calibrated compensations, to spot a numerical floor.
+        let others_min = nav
+            .compensations
+            .iter()
+            .filter(|comp| comp.name() != "true")
+            .flat_map(|comp| quantiles(comp.name(), metric))
+            .map(|q| q.2)
+            .filter(|v| v.is_finite() && *v > 0.0)
+            .fold(f64::INFINITY, f64::min);
         for (k, comp) in nav.compensations.iter().enumerate() {
+            let q = quantiles(comp.name(), metric);
+            let largest = q.iter().map(|q| q.2).fold(0.0, f64::max);
+            if comp.name() == "true" && others_min.is_finite() && largest < 1e-3 * others_min {
+                // With true parameters and noise-free outputs only the integrator's error is
+                // left; drawn, it would squeeze the other curves into the top of the plot.
+                floors.push(format!("{metric} at most {}", sig(largest, 2)));
+                continue;
+            }
+            let legend = m == 0;
             let mut med = Vec::new();
             let (mut lo, mut hi) = (Vec::new(), Vec::new());
-            for h in &nav.horizons_s {
-                let col = drift_column(comp.name(), metric, *h);
-                let Some(d) = summary.drift.iter().find(|d| d.cell == c as u32 && d.column == col) else { continue };
-                if d.diverged > 0 {
-                    diverged.push(format!("{col}: {} of {}", d.diverged, d.n));
+            for &(h, p05, median, p95, n_diverged, n) in &q {
+                if n_diverged > 0 {
+                    diverged.push(format!("{}: {n_diverged} of {n}", drift_column(comp.name(), metric, h)));
                 }
-                med.push((*h, d.median));
-                lo.push((*h, d.p05));
-                hi.push((*h, d.p95));
+                med.push((h, median));
+                lo.push((h, p05));
+                hi.push((h, p95));
             }
             if (anchor.is_none() || comp.name() == "estimated")
                 && let Some(&(h, v)) = med.iter().find(|(_, v)| v.is_finite() && *v > 0.0)
@@ -335,7 +362,7 @@ fn drift_figure(cfg: &McConfig, c: usize, summary: &Summary) -> Result<Option<Fi
                 anchor = Some((h, v));
             }
             panel = panel.with(Item::Band { label: None, lower: lo, upper: hi, colour: k }).with(Item::Line {
-                label: Some(format!("{} (median, 5-95%)", comp.name())),
+                label: legend.then(|| format!("{} (median, 5-95%)", comp.name())),
                 points: med,
                 colour: k,
                 dashed: false,
@@ -351,7 +378,7 @@ fn drift_figure(cfg: &McConfig, c: usize, summary: &Summary) -> Result<Option<Fi
                     })
                     .collect();
                 panel = panel.with(Item::Line {
-                    label: Some(if p == 1 { "~ t".into() } else { format!("~ t^{p}") }),
+                    label: (m == 0).then(|| if p == 1 { "~ t".into() } else { format!("~ t^{p}") }),
                     points: pts,
                     colour: 2 + p as usize,
                     dashed: true,
@@ -369,8 +396,16 @@ fn drift_figure(cfg: &McConfig, c: usize, summary: &Summary) -> Result<Option<Fi
         "Navigation error against horizon for cell {c} ({}) on the configured trajectory: median (line) and \
          5-95% band over the trials, for each compensation, log-log. Dashed: t, t^2, t^3, t^4 through the \
          median at the first horizon (a bias gives velocity ~ t and position ~ t^2; an angular-rate error gives \
-         attitude ~ t, velocity ~ t^2, position ~ t^3). {}",
+         attitude ~ t, velocity ~ t^2, position ~ t^3).{} {}",
         describe(cell),
+        if floors.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " Not drawn: true-parameter compensation, whose error is the integrator's alone (median {}).",
+                floors.join(", ")
+            )
+        },
         if diverged.is_empty() {
             "No navigation diverged.".to_string()
         } else {
@@ -436,15 +471,16 @@ fn location_figure(cfg: &McConfig, samples: &[Sample], summary: &Summary) -> Res
             colour: 7,
             dashed: true,
         });
-        if !strong_pts.is_empty() {
-            panel = panel.with(Item::Points { label: Some("well determined".into()), points: strong_pts, colour: 0 });
-        }
+        // The weak ones first, so that the tight clusters of the others stay visible on top.
         if !weak_pts.is_empty() {
             panel = panel.with(Item::Points {
                 label: Some(format!("weak: {}", weak_names.join(", "))),
                 points: weak_pts,
                 colour: 1,
             });
+        }
+        if !strong_pts.is_empty() {
+            panel = panel.with(Item::Points { label: Some("well determined".into()), points: strong_pts, colour: 0 });
         }
         panels.push(panel);
     }
