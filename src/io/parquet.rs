@@ -245,6 +245,23 @@ pub fn write_part(path: &Path, batch: &RecordBatch, metadata: &[(String, String)
     result
 }
 
+/// The Parquet part files of a folder, in name order (empty if the folder is missing).
+pub fn part_files(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut files: Vec<std::path::PathBuf> = std::fs::read_dir(dir)
+        .map(|d| d.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "parquet")).collect())
+        .unwrap_or_default();
+    files.sort();
+    files
+}
+
+/// Column `name` of a batch read from `path`, as array type `T`.
+pub fn column<'a, T: 'static>(batch: &'a RecordBatch, name: &str, path: &Path) -> Result<&'a T, ParquetIoError> {
+    batch.column_by_name(name).and_then(|c| c.as_any().downcast_ref::<T>()).ok_or_else(|| ParquetIoError::Format {
+        path: path.display().to_string(),
+        message: format!("column `{name}` missing or mistyped"),
+    })
+}
+
 /// Reads every record batch of a Parquet file.
 pub fn read_batches(path: &Path) -> Result<Vec<RecordBatch>, ParquetIoError> {
     let shown = path.display().to_string();

@@ -85,13 +85,7 @@ pub fn sensitivity(dir: &Path, max_trials: usize) -> Result<Vec<SensitivityRow>,
     let mut truth: BTreeMap<(u32, u64), Vec<f64>> = BTreeMap::new();
     let mut error: BTreeMap<(u32, u64), Vec<f64>> = BTreeMap::new();
     let mut per_cell: BTreeMap<u32, usize> = BTreeMap::new();
-    let files = |sub: &str| {
-        let mut f: Vec<_> = std::fs::read_dir(dir.join(sub))
-            .map(|d| d.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "parquet")).collect())
-            .unwrap_or_default();
-        f.sort();
-        f
-    };
+    let files = |sub: &str| crate::io::parquet::part_files(&dir.join(sub));
     let col =
         |b: &arrow_array::RecordBatch, name: &str, path: &Path| -> Result<arrow_array::ArrayRef, ParquetIoError> {
             b.column_by_name(name).cloned().ok_or_else(|| ParquetIoError::Format {

@@ -24,7 +24,7 @@ use arrow_array::{Array, Float64Array, UInt64Array};
 use rand::RngExt;
 
 use super::config::McConfig;
-use crate::io::parquet::{ParquetIoError, drift_column, read_batches};
+use crate::io::parquet::{ParquetIoError, drift_column, part_files, read_batches};
 use crate::mc::trial::DRIFT_METRICS;
 
 /// Resamples for the confidence intervals.
@@ -138,11 +138,7 @@ pub fn sobol(dir: &Path, cfg: &McConfig) -> Result<Vec<SobolRow>, ParquetIoError
                 .collect()
         })
         .collect();
-    let mut files: Vec<_> = std::fs::read_dir(dir.join("trials"))
-        .map(|d| d.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "parquet")).collect())
-        .unwrap_or_default();
-    files.sort();
-    for file in files {
+    for file in part_files(&dir.join("trials")) {
         for batch in read_batches(&file)? {
             let trial =
                 batch.column_by_name("trial_id").and_then(|c| c.as_any().downcast_ref::<UInt64Array>().cloned());

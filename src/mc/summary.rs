@@ -7,9 +7,9 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use arrow_array::{Array, Float64Array, RecordBatch, StringArray, UInt32Array};
+use arrow_array::{Array, Float64Array, StringArray, UInt32Array};
 
-use crate::io::parquet::{ParquetIoError, read_batches};
+use crate::io::parquet::{ParquetIoError, column, part_files as parts, read_batches};
 
 /// Statistics of one parameter in one cell, SI.
 #[derive(Debug, Clone, PartialEq)]
@@ -119,21 +119,6 @@ impl Histogram {
         }
         f64::INFINITY
     }
-}
-
-fn column<'a, T: 'static>(batch: &'a RecordBatch, name: &str, path: &Path) -> Result<&'a T, ParquetIoError> {
-    batch.column_by_name(name).and_then(|c| c.as_any().downcast_ref::<T>()).ok_or_else(|| ParquetIoError::Format {
-        path: path.display().to_string(),
-        message: format!("column `{name}` missing or mistyped"),
-    })
-}
-
-fn parts(dir: &Path) -> Vec<std::path::PathBuf> {
-    let mut files: Vec<_> = std::fs::read_dir(dir)
-        .map(|d| d.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "parquet")).collect())
-        .unwrap_or_default();
-    files.sort();
-    files
 }
 
 /// Reads every part of `dir/trials` and `dir/parameters`.

@@ -22,13 +22,13 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use arrow_array::{Array, Float64Array, StringArray, UInt32Array};
+use arrow_array::{Float64Array, StringArray, UInt32Array};
 
 use super::html::Page;
 use super::plot::{Figure, Item, Panel, render};
 use super::{ReportError, display_unit, kind_of_unit};
 use crate::io::csv::significant as sig;
-use crate::io::parquet::{ParquetIoError, drift_column, read_batches};
+use crate::io::parquet::{ParquetIoError, column, drift_column, part_files, read_batches};
 use crate::mc::config::{Cell, FactorValue, McConfig};
 use crate::mc::sensitivity::{SensitivityRow, sensitivity};
 use crate::mc::sobol::{SobolRow, sobol};
@@ -84,21 +84,6 @@ pub fn describe(cell: &Cell) -> String {
 #[derive(Debug, Default)]
 struct Sample {
     rows: BTreeMap<String, Vec<[f64; 4]>>,
-}
-
-fn column<'a, T: 'static>(b: &'a arrow_array::RecordBatch, name: &str, path: &Path) -> Result<&'a T, ParquetIoError> {
-    b.column_by_name(name).and_then(|c| c.as_any().downcast_ref::<T>()).ok_or_else(|| ParquetIoError::Format {
-        path: path.display().to_string(),
-        message: format!("column `{name}` missing or mistyped"),
-    })
-}
-
-fn part_files(dir: &Path) -> Vec<PathBuf> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map(|d| d.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "parquet")).collect())
-        .unwrap_or_default();
-    files.sort();
-    files
 }
 
 fn read_samples(dir: &Path, cells: usize, cap: usize) -> Result<Vec<Sample>, ParquetIoError> {

@@ -152,12 +152,33 @@ kind = "paper_manoeuvre"
 step_s = 0.02
 horizons_s = [0.5, 1.0]
 compensations = ["nominal", "estimated"]
+
+[output]
+trials_per_part = 300
 "#;
 
 #[test]
 fn sobol_indices_give_the_one_error_source_the_whole_index() {
     let tmp = tempfile::tempdir().unwrap();
     let out = run_config(tmp.path(), SALTELLI);
+    // The design comes from per-block streams: one thread and three shards give the same table.
+    let path = tmp.path().join("config.toml");
+    let cfg = McConfig::load(&path).unwrap();
+    let other = tmp.path().join("other");
+    for shard in 0..3 {
+        let opts =
+            RunOptions { out: other.clone(), resume: shard > 0, force: false, shard: (shard, 3), threads: Some(1) };
+        run(&cfg, &path, &opts, &Silent).unwrap();
+    }
+    for sub in ["trials", "parameters"] {
+        let read = |dir: &Path| -> Vec<arrow_array::RecordBatch> {
+            gfcal::io::parquet::part_files(&dir.join(sub))
+                .iter()
+                .flat_map(|f| gfcal::io::parquet::read_batches(f).unwrap())
+                .collect()
+        };
+        assert_eq!(read(&out), read(&other), "{sub}");
+    }
     let cfg = gfcal::report::run::load_config(&out).unwrap();
     // Two inputs: 500 x (2 + 2) trials.
     assert_eq!(cfg.trials_per_cell, 2000);
@@ -174,7 +195,9 @@ fn sobol_indices_give_the_one_error_source_the_whole_index() {
         assert!(a2.first_order.abs() < 0.01 && a2.total < 0.01, "{col}: {a2:?}");
     }
     // The design is in the trials table for an analyst.
-    let batches = gfcal::io::parquet::read_batches(&out.join("trials/part-000000.parquet")).unwrap();
+    let parts = gfcal::io::parquet::part_files(&out.join("trials"));
+    assert_eq!(parts.len(), 7);
+    let batches = gfcal::io::parquet::read_batches(&parts[0]).unwrap();
     let matrix = batches[0].column_by_name("saltelli_matrix").unwrap();
     let matrix = matrix.as_any().downcast_ref::<arrow_array::StringArray>().unwrap();
     let first: Vec<&str> = (0..4).map(|i| matrix.value(i)).collect();
@@ -186,32 +209,36 @@ fn sobol_indices_give_the_one_error_source_the_whole_index() {
     assert_eq!(sobol.panels.len(), 8);
 }
 
-#[test]
-fn saltelli_design_with_trials_per_cell_is_refused() {
+/// `gfcal run` of `text` exits with 2, names `words` and writes nothing.
+fn run_refused(text: &str, words: &[&str]) {
     let tmp = tempfile::tempdir().unwrap();
     let path = tmp.path().join("bad.toml");
-    std::fs::write(&path, SALTELLI.replace("seed = 3", "seed = 3\ntrials_per_cell = 10")).unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_gfcal"))
-        .arg("run")
-        .arg(&path)
-        .arg("--out")
-        .arg(tmp.path().join("o"))
-        .output()
-        .unwrap();
+    std::fs::write(&path, text).unwrap();
+    let out = tmp.path().join("o");
+    let o = Command::new(env!("CARGO_BIN_EXE_gfcal")).arg("run").arg(&path).arg("--out").arg(&out).output().unwrap();
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("bad.toml") && err.contains("trials_per_cell") && err.contains("Saltelli"), "{err}");
-    assert!(!tmp.path().join("o").exists());
-    std::fs::write(&path, SALTELLI.replace("sigma = [1.0, 0.001, 0.0, 0.0, 0.0, 0.0]", "sigma = 0.0")).unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_gfcal"))
-        .arg("run")
-        .arg(&path)
-        .arg("--out")
-        .arg(tmp.path().join("o"))
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("no error parameter varies"));
+    for w in words {
+        assert!(err.contains(w), "`{w}` not in: {err}");
+    }
+    assert!(!out.exists());
+}
+
+#[test]
+fn bad_saltelli_designs_are_refused() {
+    run_refused(
+        &SALTELLI.replace("seed = 3", "seed = 3\ntrials_per_cell = 10"),
+        &["bad.toml", "trials_per_cell", "Saltelli"],
+    );
+    run_refused(
+        &SALTELLI.replace("sigma = [1.0, 0.001, 0.0, 0.0, 0.0, 0.0]", "sigma = 0.0"),
+        &["no error parameter varies"],
+    );
+    run_refused(
+        &SALTELLI.replace("base_samples = 500", "base_samples = 1"),
+        &["sensitivity.base_samples", "at least 2"],
+    );
+    run_refused(&SALTELLI.replace("design = \"saltelli\"", "design = \"morris\""), &["bad.toml", "morris"]);
 }
 
 #[test]
