@@ -183,7 +183,7 @@ pub fn sensitivity(dir: &Path, max_trials: usize) -> anyhow::Result<()> {
         let sobol_path = dir.join("sobol.csv");
         gfcal::io::write_atomic(&sobol_path, gfcal::mc::sobol::sobol_csv(&rows).as_bytes())
             .with_context(|| format!("cannot write {}", sobol_path.display()))?;
-        println!("Largest total Sobol' indices per drift column at the last horizon (first order in brackets):");
+        println!("Largest total Sobol' indices of log10 of each drift column (first order in brackets):");
         let mut outputs: Vec<(u32, String)> = rows.iter().map(|r| (r.cell, r.output.clone())).collect();
         outputs.dedup();
         for (cell, output) in outputs {

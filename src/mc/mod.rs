@@ -3,8 +3,9 @@
 //!
 //! A run is a function of its config and seed. Trial `i` draws everything (error parameters,
 //! calibration noise) from `trial_rng(seed, i)` and its navigation noise from
-//! `trial_rng(seed ^ NAV_SALT, i)`, so the results are the same on any number of threads and when
-//! the trials are split into shards. Trials are grouped into parts of a fixed size; a part is
+//! `trial_rng(seed ^ NAV_SALT, i)` (on a Saltelli design the error parameters come from the
+//! block's stream and the noise from its A or B row's: see [`sample::Saltelli`]), so the results
+//! are the same on any number of threads and when the trials are split into shards. Trials are grouped into parts of a fixed size; a part is
 //! written whole (temporary name, then rename), so an interrupted run resumes by running the parts
 //! that are missing.
 

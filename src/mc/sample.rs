@@ -113,6 +113,15 @@ impl Saltelli {
         )
     }
 
+    /// The stream of a trial's noise (calibration and navigation): the trial of its block's A
+    /// row for A and AB rows, its own for the B row. An AB row then differs from its A row only
+    /// in input `i`, and the noise is one more input of the design (held, never swapped), so it
+    /// does not leak into every input's total index.
+    pub fn noise_stream(&self, trial: u64) -> u64 {
+        let (j, row) = self.role(trial);
+        self.first_trial + j * self.rows_per_sample() + u64::from(row == SaltelliRow::B)
+    }
+
     /// The true parameters of trial `trial` of the cell under master seed `seed`.
     pub fn sample(&self, errors: &ErrorModel, layout: &Layout, seed: u64, trial: u64) -> DVector<f64> {
         let (j, row) = self.role(trial);

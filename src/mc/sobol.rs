@@ -13,9 +13,12 @@
 //! the tail; those of its logarithm describe the orders of magnitude.
 //!
 //! The 95% intervals are bootstrap percentiles over the base samples. A base sample with any
-//! output missing (no estimate) or diverged is left out. For the estimated compensation, the
-//! calibration noise is an input the design does not control: it is part of `V` and of every
-//! `ST_i`, so the first-order indices sum to less than one by (about) its share.
+//! output missing (no estimate) or diverged is left out. The noise (of the calibration, and of
+//! the navigation when it has noise) is one more input of the design, the same in a block's A
+//! and AB rows ([`Saltelli::noise_stream`](super::sample::Saltelli::noise_stream)): it is part
+//! of `V`, so for the estimated compensation the parameters' first-order indices sum to less
+//! than one by the noise's share, but it does not enter their total indices except through
+//! interactions.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -117,8 +120,8 @@ pub fn indices_with_intervals(
     Some((rows, valid.len()))
 }
 
-/// Sobol' indices of every input for `log10` of every drift column at the last horizon of each
-/// cell of a run on a Saltelli design (empty when the run has none).
+/// Sobol' indices of every input for `log10` of every drift column (every compensation, horizon
+/// and metric) of each cell of a run on a Saltelli design (empty when the run has none).
 pub fn sobol(dir: &Path, cfg: &McConfig) -> Result<Vec<SobolRow>, ParquetIoError> {
     if cfg.cells.iter().all(|c| c.saltelli.is_none()) {
         return Ok(Vec::new());
@@ -130,11 +133,14 @@ pub fn sobol(dir: &Path, cfg: &McConfig) -> Result<Vec<SobolRow>, ParquetIoError
         .cells
         .iter()
         .map(|c| {
-            let h = c.navigation.horizons_s.last().copied().unwrap_or(1.0);
-            c.navigation
-                .compensations
+            let nav = &c.navigation;
+            nav.compensations
                 .iter()
-                .flat_map(|comp| DRIFT_METRICS.iter().map(move |(m, _)| drift_column(comp.name(), m, h)))
+                .flat_map(|comp| {
+                    nav.horizons_s
+                        .iter()
+                        .flat_map(move |h| DRIFT_METRICS.iter().map(move |(m, _)| drift_column(comp.name(), m, *h)))
+                })
                 .collect()
         })
         .collect();

@@ -89,7 +89,9 @@ pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Tri
     let layout = &cell.layout;
     let g = cell.calibration.gravity_m_s2;
     let p = layout.len();
-    let mut rng = trial_rng(seed, trial);
+    // A Saltelli design shares noise between a block's A and AB rows (see `noise_stream`).
+    let stream = cell.saltelli.as_ref().map(|s| s.noise_stream(trial)).unwrap_or(trial);
+    let mut rng = trial_rng(seed, stream);
     let x_true = match &cell.saltelli {
         Some(design) => design.sample(&cell.errors, layout, seed, trial),
         None => cell.errors.sample(layout, &mut rng),
@@ -124,7 +126,7 @@ pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Tri
             let mut compensator = Compensator::new(&cell.array, params).ok()?;
             let mut source = SimulatedArray::new(&cell.array, &truth, &nav.trajectory, gravity_i);
             if nav.noise && !cell.noise.is_zero() {
-                let mut nav_rng = trial_rng(seed ^ NAV_SALT, trial);
+                let mut nav_rng = trial_rng(seed ^ NAV_SALT, stream);
                 let generator = NoiseGenerator::new(&cell.noise, cell.array.len(), 1.0 / nav.step_s, &mut nav_rng);
                 source = source.with_noise(generator, nav_rng, cell.noise.quantization_m_s2);
             }

@@ -573,9 +573,10 @@ fn sobol_figure(cfg: &McConfig, c: usize, rows: &[SobolRow]) -> Result<Option<Fi
         "Sobol' indices of the error parameters for log10 of each drift metric at {h} s in cell {c} ({}), from the run's \
          Saltelli design ({used} base samples): first order (the share of the metric's variance an input explains \
          alone) and total (with all its interactions), with bootstrap 95% intervals; the eight largest totals per \
-         metric. Total well above first order means the input acts through interactions. For the estimated \
-         compensation the calibration noise is an uncontrolled input: the first-order indices then sum to less \
-         than one.",
+         metric. Total well above first order means the input acts through interactions (a drift metric is the norm \
+         of an error vector, and a norm is not additive in its contributions). For the estimated compensation \
+         the calibration noise is one more input, held between a block's A and AB rows: its share is in the \
+         variance, not in the parameters' indices.",
         describe(cell)
     );
     Ok(Some(render(&format!("sobol_cell{c}"), &format!("Sobol' indices, cell {c}"), &caption, &panels, 4, (480, 300))?))
