@@ -323,7 +323,22 @@ fn draw_panel(p: &Panel, area: &Area<'_>) -> Result<(), Box<dyn std::error::Erro
         Some(names) => (-0.5, names.len().max(1) as f64 - 0.5),
         None => padded(xs.iter().copied(), t.x_log, false).ok_or("no x values")?,
     };
-    let (y0, y1) = padded(ys.iter().copied(), t.y_log, has_bars).ok_or("no y values")?;
+    let (y0, mut y1) = padded(ys.iter().copied(), t.y_log, has_bars).ok_or("no y values")?;
+    // Headroom for the legend (upper left), so that it does not hide data.
+    let entries = p
+        .items
+        .iter()
+        .filter(|i| match i {
+            Item::Line { label, .. }
+            | Item::Band { label, .. }
+            | Item::Points { label, .. }
+            | Item::Bars { label, .. }
+            | Item::Intervals { label, .. } => label.is_some(),
+        })
+        .count();
+    if entries > 0 {
+        y1 += (y1 - y0) * (0.1 * entries as f64 + 0.05).min(1.0);
+    }
     let n_categories = p.categories.as_ref().map(|c| c.len()).unwrap_or(0);
     let mut chart = ChartBuilder::on(area)
         .caption(&p.title, ("sans-serif", 15))

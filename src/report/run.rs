@@ -308,34 +308,45 @@ fn drift_figure(cfg: &McConfig, c: usize, summary: &Summary) -> Result<Option<Fi
             })
             .collect()
     };
-    for (m, (metric, _)) in DRIFT_METRICS.iter().enumerate() {
-        let mut panel =
-            Panel::new(labels[m].split(" [").next().unwrap_or(metric), "horizon [s]", labels[m]).log_x().log_y();
-        let mut anchor: Option<(f64, f64)> = None;
-        // The smallest median of the calibrated compensations, to spot a numerical floor.
-        let others_min = nav
-            .compensations
+    // With true parameters and noise-free outputs only the integrator's error is left: when it is
+    // more than a hundred times below every median of the other compensations, for every metric,
+    // drawing it would squeeze the other curves into the top of the plots; it is named instead.
+    let largest_true = |metric: &str| quantiles("true", metric).iter().map(|q| q.2).fold(0.0, f64::max);
+    let smallest_other = |metric: &str| {
+        nav.compensations
             .iter()
             .filter(|comp| comp.name() != "true")
             .flat_map(|comp| quantiles(comp.name(), metric))
             .map(|q| q.2)
             .filter(|v| v.is_finite() && *v > 0.0)
-            .fold(f64::INFINITY, f64::min);
+            .fold(f64::INFINITY, f64::min)
+    };
+    let hide_true = nav.compensations.iter().any(|c| c.name() == "true")
+        && DRIFT_METRICS.iter().all(|(metric, _)| {
+            let other = smallest_other(metric);
+            other.is_finite() && largest_true(metric) < 1e-2 * other
+        });
+    if hide_true {
+        floors.extend(
+            DRIFT_METRICS.iter().map(|(metric, _)| format!("{metric} at most {}", sig(largest_true(metric), 2))),
+        );
+    }
+    for (m, (metric, _)) in DRIFT_METRICS.iter().enumerate() {
+        let mut panel =
+            Panel::new(labels[m].split(" [").next().unwrap_or(metric), "horizon [s]", labels[m]).log_x().log_y();
+        let mut anchor: Option<(f64, f64)> = None;
         for (k, comp) in nav.compensations.iter().enumerate() {
-            let q = quantiles(comp.name(), metric);
-            let largest = q.iter().map(|q| q.2).fold(0.0, f64::max);
-            if comp.name() == "true" && others_min.is_finite() && largest < 1e-3 * others_min {
-                // With true parameters and noise-free outputs only the integrator's error is
-                // left; drawn, it would squeeze the other curves into the top of the plot.
-                floors.push(format!("{metric} at most {}", sig(largest, 2)));
+            if hide_true && comp.name() == "true" {
                 continue;
             }
+            let q = quantiles(comp.name(), metric);
             let legend = m == 0;
             let mut med = Vec::new();
             let (mut lo, mut hi) = (Vec::new(), Vec::new());
             for &(h, p05, median, p95, n_diverged, n) in &q {
-                if n_diverged > 0 {
-                    diverged.push(format!("{}: {n_diverged} of {n}", drift_column(comp.name(), metric, h)));
+                // A navigation that diverges stays diverged: its count at the last horizon says it.
+                if n_diverged > 0 && m == 0 && Some(&h) == nav.horizons_s.last() {
+                    diverged.push(format!("{}, {n_diverged} of {n} trials by {h} s", comp.name()));
                 }
                 med.push((h, median));
                 lo.push((h, p05));
@@ -394,7 +405,10 @@ fn drift_figure(cfg: &McConfig, c: usize, summary: &Summary) -> Result<Option<Fi
         if diverged.is_empty() {
             "No navigation diverged.".to_string()
         } else {
-            format!("Diverged (counted above every quantile, not drawn when the quantile is): {}.", diverged.join("; "))
+            format!(
+                "Diverged navigations (counted above every quantile; a quantile they reach is not drawn): {}.",
+                diverged.join("; ")
+            )
         }
     );
     Ok(Some(render(&format!("drift_cell{c}"), &format!("Drift, cell {c}"), &caption, &panels, 2, (560, 380))?))
