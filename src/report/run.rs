@@ -709,6 +709,15 @@ pub fn write_run_report(dir: &Path) -> Result<(RunReport, Vec<PathBuf>), ReportE
             .map_err(|source| ReportError::Write { path: path.clone(), source })?;
         written.push(path);
     }
+    // SVGs of an earlier report that this one does not draw (e.g. a cell's Sobol' figure of a
+    // run since replaced) would be stale: removed.
+    for old in
+        std::fs::read_dir(&svg_dir).map(|d| d.flatten().map(|e| e.path()).collect::<Vec<_>>()).unwrap_or_default()
+    {
+        if old.extension().is_some_and(|x| x == "svg") && !written.contains(&old) {
+            std::fs::remove_file(&old).map_err(|source| ReportError::Write { path: old.clone(), source })?;
+        }
+    }
     let path = dir.join("report.html");
     crate::io::write_atomic(&path, report.html.as_bytes())
         .map_err(|source| ReportError::Write { path: path.clone(), source })?;

@@ -293,3 +293,29 @@ fn diagnosis_report_shows_the_gap_shrink_after_each_effect() {
     assert!(residuals.panels.iter().all(|p| p.data_points >= log.steps.len() * 6));
     assert!(html.contains("scale_factor_quadratic"));
 }
+
+#[test]
+fn report_of_an_incomplete_run_says_so() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("config.toml");
+    std::fs::write(&path, SALTELLI).unwrap();
+    let cfg = McConfig::load(&path).unwrap();
+    let out = tmp.path().join("out");
+    // The first of three shards: 3 of the 7 parts.
+    let opts = RunOptions { out: out.clone(), resume: false, force: false, shard: (0, 3), threads: Some(2) };
+    run(&cfg, &path, &opts, &Silent).unwrap();
+    std::fs::create_dir_all(out.join("report")).unwrap();
+    std::fs::write(out.join("report/sobol_cell0.svg"), "<svg/>").unwrap();
+    let (report, written) = write_run_report(&out).unwrap();
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.contains("The run is not complete"));
+    // A figure this report does not draw is not left behind from an earlier one.
+    assert!(!out.join("report/sobol_cell0.svg").exists());
+    assert_eq!(std::fs::read_dir(out.join("report")).unwrap().count(), written.len() - 1);
+    // Sobol' indices need every row of a block: none are drawn, and the page says why.
+    assert!(report.figures.iter().all(|f| !f.name.starts_with("sobol")));
+    assert!(report.notes.iter().any(|n| n.contains("Sobol' indices (the run is incomplete")), "{:?}", report.notes);
+    for f in &report.figures {
+        check_figure(f);
+    }
+}
