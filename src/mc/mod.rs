@@ -5,9 +5,9 @@
 //! calibration noise) from `trial_rng(seed, i)` and its navigation noise from
 //! `trial_rng(seed ^ NAV_SALT, i)` (on a Saltelli design the error parameters come from the
 //! block's stream and the noise from its A or B row's: see [`sample::Saltelli`]), so the results
-//! are the same on any number of threads and when the trials are split into shards. Trials are grouped into parts of a fixed size; a part is
-//! written whole (temporary name, then rename), so an interrupted run resumes by running the parts
-//! that are missing.
+//! are the same on any number of threads and when the trials are split into shards. Trials are
+//! grouped into parts of a fixed size; a part is written whole (temporary name, then rename), so
+//! an interrupted run resumes by running the parts that are missing.
 
 pub mod config;
 pub mod design;

@@ -23,11 +23,11 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use arrow_array::{Array, Float64Array, UInt64Array};
+use arrow_array::{Float64Array, UInt64Array};
 use rand::RngExt;
 
 use super::config::McConfig;
-use crate::io::parquet::{ParquetIoError, drift_column, part_files, read_batches};
+use crate::io::parquet::{ParquetIoError, column, drift_column, part_files, read_batches};
 use crate::mc::trial::DRIFT_METRICS;
 
 /// Resamples for the confidence intervals.
@@ -146,24 +146,18 @@ pub fn sobol(dir: &Path, cfg: &McConfig) -> Result<Vec<SobolRow>, ParquetIoError
         .collect();
     for file in part_files(&dir.join("trials")) {
         for batch in read_batches(&file)? {
-            let trial =
-                batch.column_by_name("trial_id").and_then(|c| c.as_any().downcast_ref::<UInt64Array>().cloned());
-            let Some(trial) = trial else {
-                return Err(ParquetIoError::Format {
-                    path: file.display().to_string(),
-                    message: "column `trial_id` missing or mistyped".into(),
-                });
-            };
+            let trial = column::<UInt64Array>(&batch, "trial_id", &file)?;
+            // Each cell's wanted columns, looked up once per batch.
+            let arrays: Vec<Vec<Option<&Float64Array>>> = wanted
+                .iter()
+                .map(|cols| cols.iter().map(|col| column::<Float64Array>(&batch, col, &file).ok()).collect())
+                .collect();
             for i in 0..batch.num_rows() {
                 let t = trial.value(i);
                 let c = (t / cfg.trials_per_cell) as usize;
-                let Some(cols) = wanted.get(c) else { continue };
-                for col in cols {
-                    let Some(v) =
-                        batch.column_by_name(col).and_then(|a| a.as_any().downcast_ref::<Float64Array>().cloned())
-                    else {
-                        continue;
-                    };
+                let (Some(cols), Some(arrays)) = (wanted.get(c), arrays.get(c)) else { continue };
+                for (col, array) in cols.iter().zip(arrays) {
+                    let Some(v) = array else { continue };
                     values.entry((c as u32, col.clone())).or_insert_with(|| vec![f64::NAN; tpc])
                         [(t % cfg.trials_per_cell) as usize] = v.value(i);
                 }
