@@ -101,7 +101,11 @@ fn read_samples(dir: &Path, cells: usize, cap: usize) -> Result<Vec<Sample>, Par
             let crb = column::<Float64Array>(&b, "crb_sigma", &file)?;
             for i in 0..b.num_rows() {
                 let Some(s) = out.get_mut(cell.value(i) as usize) else { continue };
-                let rows = s.rows.entry(name.value(i).to_string()).or_default();
+                // No allocation per row once the parameter is known.
+                let rows = match s.rows.get_mut(name.value(i)) {
+                    Some(rows) => rows,
+                    None => s.rows.entry(name.value(i).to_string()).or_default(),
+                };
                 if rows.len() < cap {
                     rows.push([t.value(i), e.value(i), err.value(i), crb.value(i)]);
                 }
