@@ -21,5 +21,6 @@ pub mod motion;
 pub mod nav;
 pub mod report;
 pub mod rng;
+pub mod selfcal;
 pub mod sensor;
 pub mod units;

@@ -118,6 +118,50 @@ enum Command {
         /// The run's output folder.
         dir: PathBuf,
     },
+    /// Calibrate a real array from a recording (hand-placed static poses, then free rotation by
+    /// hand): bias, scale factor, tilt and location of every accelerometer with its sigma, the
+    /// angular rate from the accelerometers alone (gyroscope-free), checked against the reference
+    /// gyroscopes the array file lists.
+    Calibrate {
+        /// The recording (.csv or .parquet), one row per sample.
+        recording: PathBuf,
+        /// Array file (TOML): positions, axes, columns and ranges of the accelerometers, and the
+        /// reference gyroscopes (e.g. configs/arrays/mimu4444_corners.toml).
+        #[arg(long)]
+        array: PathBuf,
+        /// Also write the calibration as JSON (SI units).
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Also write a self-contained HTML report.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        /// Take the angular rate from the reference gyroscopes instead of the accelerometers.
+        #[arg(long)]
+        use_gyro: bool,
+        /// Predict these recordings of the same array with this calibration (only their pose
+        /// directions and motion refitted) and report the residuals.
+        #[arg(long, num_args = 1..)]
+        held_out: Vec<PathBuf>,
+        /// Local gravity, m/s^2.
+        #[arg(long, default_value_t = gfcal::units::STANDARD_GRAVITY_M_S2)]
+        gravity_m_s2: f64,
+        /// Segmentation: moving-window length, s.
+        #[arg(long, default_value_t = 0.5)]
+        window_s: f64,
+        /// Segmentation: still when every accelerometer's moving std is below this multiple of
+        /// its noise floor.
+        #[arg(long, default_value_t = 2.0)]
+        still_threshold: f64,
+        /// Segmentation: shortest static interval, s (before trimming).
+        #[arg(long, default_value_t = 5.0)]
+        min_static_s: f64,
+        /// Segmentation: trimmed from each end of a static interval, s.
+        #[arg(long, default_value_t = 1.0)]
+        trim_s: f64,
+        /// Segmentation: shortest moving run counted as dynamic phase, s.
+        #[arg(long, default_value_t = 10.0)]
+        min_dynamic_s: f64,
+    },
     /// Reproduce Hung & Lee (2006) Tables 8 and 9 (CSV and Markdown) into a folder.
     Paper {
         /// Output folder (created if missing).
@@ -136,6 +180,7 @@ enum Command {
 }
 
 mod commands;
+mod hardware;
 mod progress;
 mod runs;
 
@@ -181,6 +226,38 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             commands::diagnose(&log, array.as_deref(), json.as_deref(), report.as_deref(), alpha, reference_temp_c)
         }
         Command::Design { config } => commands::design(&config),
+        Command::Calibrate {
+            recording,
+            array,
+            json,
+            report,
+            use_gyro,
+            held_out,
+            gravity_m_s2,
+            window_s,
+            still_threshold,
+            min_static_s,
+            trim_s,
+            min_dynamic_s,
+        } => {
+            let detector = gfcal::selfcal::segment::DetectorSettings {
+                window_s,
+                threshold: still_threshold,
+                min_static_s,
+                trim_s,
+                min_dynamic_s,
+            };
+            hardware::calibrate(hardware::CalibrateArgs {
+                recording: &recording,
+                array: &array,
+                json: json.as_deref(),
+                report: report.as_deref(),
+                use_gyro,
+                held_out: &held_out,
+                gravity_m_s2,
+                detector,
+            })
+        }
         Command::Paper { out, trials, seed, noise_density_ug_per_sqrt_hz } => {
             commands::paper(&out, trials, seed, noise_density_ug_per_sqrt_hz)
         }

@@ -17,6 +17,23 @@
 //! position_m = [0.0, 0.0, -0.1]
 //! axis = [1.0, 1.0, 0.0]
 //! ```
+//!
+//! For calibrating a recording (`gfcal calibrate`), an accelerometer may also name the table
+//! column it is read from (default `s1..sN`) and its range (`range_m_s2`: outputs at or beyond it
+//! are clipped and left out), and the file may list reference gyroscopes used only to check the
+//! result (or, with `--use-gyro`, to supply the angular rate):
+//!
+//! ```toml
+//! [[accelerometer]]
+//! position_m = [-0.00945, 0.00945, 0.001]
+//! axis = [1.0, 0.0, 0.0]
+//! column = "acc1_x_m_s2"
+//! range_m_s2 = 156.9
+//! [[gyroscope]]
+//! axis = [1.0, 0.0, 0.0]
+//! column = "gyro1_x_rad_s"
+//! range_rad_s = 34.9
+//! ```
 
 use std::path::Path;
 
@@ -24,6 +41,7 @@ use serde::Deserialize;
 
 use super::{Bad, ConfigError, positive, read_toml};
 use crate::array::{Array, ArrayError};
+use crate::selfcal::recording::{RecordingArray, ReferenceGyro};
 
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -41,6 +59,8 @@ pub struct ArrayFile {
     pub triads: Vec<[usize; 3]>,
     #[serde(default)]
     pub accelerometer: Vec<AccelerometerEntry>,
+    #[serde(default)]
+    pub gyroscope: Vec<GyroscopeEntry>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -48,6 +68,20 @@ pub struct ArrayFile {
 pub struct AccelerometerEntry {
     pub position_m: [f64; 3],
     pub axis: [f64; 3],
+    /// Table column of a recording (default `s{j}`).
+    pub column: Option<String>,
+    /// Measurement range, m/s^2 (outputs at or beyond it are clipped).
+    pub range_m_s2: Option<f64>,
+}
+
+/// A reference gyroscope axis of a recording.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GyroscopeEntry {
+    pub axis: [f64; 3],
+    pub column: String,
+    /// Measurement range, rad/s (readings at or beyond it are clipped).
+    pub range_rad_s: Option<f64>,
 }
 
 impl ArraySection {
@@ -81,6 +115,52 @@ impl ArraySection {
 /// Reads an array file (see the module docs).
 pub fn load_array_file(path: &Path) -> Result<Array, ConfigError> {
     let (file, _): (ArrayFile, _) = read_toml(path)?;
+    build_array(path, &file)
+}
+
+/// Reads an array file with the columns, ranges and reference gyroscopes of a recording.
+pub fn load_recording_array(path: &Path) -> Result<RecordingArray, ConfigError> {
+    let (file, _): (ArrayFile, _) = read_toml(path)?;
+    let array = build_array(path, &file)?;
+    let mut accelerometer_columns = Vec::new();
+    let mut ranges_m_s2 = Vec::new();
+    for (j, a) in file.accelerometer.iter().enumerate() {
+        accelerometer_columns.push(a.column.clone().unwrap_or_else(|| format!("s{}", j + 1)));
+        let range = match a.range_m_s2 {
+            Some(r) => positive(&format!("accelerometer[{j}].range_m_s2"), r).map_err(|b| b.in_file(path))?,
+            None => f64::INFINITY,
+        };
+        ranges_m_s2.push(range);
+    }
+    let mut gyroscopes = Vec::new();
+    for (i, g) in file.gyroscope.iter().enumerate() {
+        let axis = super::vec3(&format!("gyroscope[{i}].axis"), g.axis).map_err(|b| b.in_file(path))?;
+        if axis.norm() < 1e-12 {
+            return Err(Bad::new(format!("gyroscope[{i}].axis"), "has zero length").in_file(path));
+        }
+        let range_rad_s = match g.range_rad_s {
+            Some(r) => positive(&format!("gyroscope[{i}].range_rad_s"), r).map_err(|b| b.in_file(path))?,
+            None => f64::INFINITY,
+        };
+        gyroscopes.push(ReferenceGyro { axis: axis.normalize(), column: g.column.clone(), range_rad_s });
+    }
+    if !gyroscopes.is_empty() {
+        let m: nalgebra::Matrix3<f64> = gyroscopes.iter().map(|g| g.axis * g.axis.transpose()).sum();
+        if m.symmetric_eigenvalues().min() < 1e-6 {
+            return Err(Bad::new("gyroscope", "the reference gyroscopes' axes do not span three dimensions")
+                .in_file(path));
+        }
+    }
+    let mut seen = std::collections::HashSet::new();
+    for c in accelerometer_columns.iter().chain(gyroscopes.iter().map(|g| &g.column)) {
+        if !seen.insert(c.clone()) {
+            return Err(Bad::new("accelerometer", format!("column `{c}` is named twice")).in_file(path));
+        }
+    }
+    Ok(RecordingArray { array, accelerometer_columns, ranges_m_s2, gyroscopes, path: path.to_path_buf() })
+}
+
+fn build_array(path: &Path, file: &ArrayFile) -> Result<Array, ConfigError> {
     let mut positions = Vec::new();
     let mut axes = Vec::new();
     for (j, a) in file.accelerometer.iter().enumerate() {

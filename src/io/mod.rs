@@ -3,6 +3,7 @@
 
 pub mod csv;
 pub mod parquet;
+pub mod table;
 
 use std::io::Write;
 use std::path::Path;

@@ -2,6 +2,7 @@
 //! (a diagnosis). Each is one self-contained HTML file with its plots inline as SVG (no scripts,
 //! no network), plus the same plots as separate SVG files.
 
+pub mod calibration;
 pub mod diagnosis;
 pub mod html;
 pub mod plot;

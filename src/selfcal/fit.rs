@@ -1,0 +1,746 @@
+//! The joint estimator of a free calibration: every accelerometer's scale factor, bias, tilt
+//! angles and location error, with the pose directions and the motion at every dynamic sample as
+//! nuisance, by damped Gauss-Newton on the weighted least-squares misfit of both phases.
+//!
+//! - **Static phase**: the mean output of each static interval, weighted by
+//!   `n_p / (sigma_j^2 v_s)` with `sigma_j` the pooled within-interval scatter of accelerometer j
+//!   and `v_s = max(1, chi^2/dof)` of the static fit (so a misfit that white noise cannot explain
+//!   widens the sigmas instead of being ignored).
+//! - **Dynamic phase**: every sample that is not clipped, weighted by `1 / sigma_d,j^2`, where
+//!   `sigma_d,j` is re-estimated from the dynamic residuals (a variance component per
+//!   accelerometer: a phase whose model is worse weighs less).
+//! - The motion (9 unknowns a sample; 6 with a reference rate) is eliminated sample by sample by
+//!   the Schur complement, so each Gauss-Newton step solves only for the `7 N + 2 P` parameters.
+//! - The gauge (`selfcal::model::Gauge`) is fixed by linear constraints in the step's KKT system;
+//!   the covariance is the constrained inverse of the Fisher information, i.e. the Cramer-Rao
+//!   bound in the stated gauge. Before it is fixed, the Fisher information's null directions are
+//!   counted: they must be exactly the gauge's.
+
+use nalgebra::{DMatrix, DVector, SMatrix, Vector3};
+use rayon::prelude::*;
+
+use super::model::{Gauge, PER_ACCEL, SampleMotion, Sensor, SensorSet, sensors};
+use super::motion::{self, SampleData};
+use crate::array::Array;
+use crate::sensor::misalignment::tilt_basis;
+
+/// The static phase: one mean per interval and accelerometer.
+#[derive(Debug, Clone)]
+pub struct StaticData {
+    /// Intervals x accelerometers, output units.
+    pub means: DMatrix<f64>,
+    pub counts: Vec<usize>,
+    /// Pooled within-interval standard deviation of one sample, per accelerometer.
+    pub sigma: Vec<f64>,
+}
+
+/// The dynamic phase: samples in runs of consecutive samples.
+#[derive(Debug, Clone)]
+pub struct DynamicData {
+    pub t_s: Vec<f64>,
+    /// Samples x accelerometers.
+    pub outputs: DMatrix<f64>,
+    /// Samples x accelerometers, row-major: the output is used (not clipped).
+    pub used: Vec<bool>,
+    /// Start index of each run (the first is 0).
+    pub run_starts: Vec<usize>,
+    /// Reference rate per sample (array axes), when the rate is taken from gyroscopes.
+    pub reference_rate_rad_s: Option<Vec<Vector3<f64>>>,
+}
+
+impl DynamicData {
+    pub fn samples(&self) -> usize {
+        self.t_s.len()
+    }
+    fn runs(&self) -> Vec<(usize, usize)> {
+        let mut v = Vec::new();
+        for (i, &s) in self.run_starts.iter().enumerate() {
+            let e = self.run_starts.get(i + 1).copied().unwrap_or(self.samples());
+            if e > s {
+                v.push((s, e));
+            }
+        }
+        v
+    }
+}
+
+/// Settings of the estimator.
+#[derive(Debug, Clone, Copy)]
+pub struct FitSettings {
+    pub gravity_m_s2: f64,
+    pub max_iterations: usize,
+}
+
+impl Default for FitSettings {
+    fn default() -> Self {
+        Self { gravity_m_s2: crate::units::STANDARD_GRAVITY_M_S2, max_iterations: 50 }
+    }
+}
+
+/// The result of a fit.
+#[derive(Debug, Clone)]
+pub struct Fit {
+    pub params: SensorSet,
+    /// Up direction of every static interval, array axes.
+    pub up: Vec<Vector3<f64>>,
+    pub motion: Vec<SampleMotion>,
+    /// Sigma of each sample's rate given the sensor parameters (rad/s, per axis).
+    pub omega_sigma_rad_s: Vec<Vector3<f64>>,
+    /// Covariance of `(accelerometer parameters, pose tangents)`, in the gauge; NaN rows for
+    /// parameters the data cannot identify (locations without a dynamic phase).
+    pub covariance: DMatrix<f64>,
+    pub locations_identified: bool,
+    pub gauge: Gauge,
+    /// Null directions of the Fisher information before the gauge is fixed.
+    pub null_directions: usize,
+    pub static_chi2_dof: f64,
+    pub static_residual_rms_m_s2: f64,
+    pub static_variance_factor: f64,
+    /// Per accelerometer: dynamic residual RMS and the variance component used.
+    pub dynamic_residual_rms_m_s2: Vec<f64>,
+    pub dynamic_sigma_m_s2: Vec<f64>,
+    /// Dynamic misfit against the static noise: sum (r / sigma_j)^2 / dof.
+    pub dynamic_chi2_dof: f64,
+    pub iterations: usize,
+    pub converged: bool,
+}
+
+impl Fit {
+    /// Sigma of parameter `p` of accelerometer `j`.
+    pub fn sigma(&self, j: usize, p: usize) -> f64 {
+        self.covariance[(PER_ACCEL * j + p, PER_ACCEL * j + p)].sqrt()
+    }
+}
+
+/// Why a fit failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum FitError {
+    #[error("{found} static interval(s); a calibration needs at least {needed}")]
+    TooFewPoses { found: usize, needed: usize },
+    #[error("the normal equations are singular beyond the gauge: {0}")]
+    Singular(String),
+}
+
+/// First guess of each pose's up direction from nominal axes (least squares over the array).
+fn initial_up(array: &Array, data: &StaticData) -> Vec<Vector3<f64>> {
+    let normal: nalgebra::Matrix3<f64> = array.accelerometers().iter().map(|a| a.axis * a.axis.transpose()).sum();
+    let inv = normal.try_inverse().unwrap_or_else(nalgebra::Matrix3::identity);
+    (0..data.means.nrows())
+        .map(|p| {
+            let b: Vector3<f64> = array.accelerometers().iter().enumerate().map(|(j, a)| a.axis * data.means[(p, j)]).sum();
+            let v = inv * b;
+            if v.norm() > 0.0 { v.normalize() } else { Vector3::z() }
+        })
+        .collect()
+}
+
+struct State {
+    params: SensorSet,
+    up: Vec<Vector3<f64>>,
+    motion: Vec<SampleMotion>,
+}
+
+struct Normal {
+    h: DMatrix<f64>,
+    g: DVector<f64>,
+}
+
+struct Weights {
+    static_w: DMatrix<f64>,
+    dynamic_w: Vec<f64>,
+}
+
+/// Fits the model to a recording's static and (optional) dynamic phase.
+pub fn fit(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: Option<&DynamicData>,
+    settings: &FitSettings,
+) -> Result<Fit, FitError> {
+    let n = array.len();
+    let poses = stat.means.nrows();
+    // 4 N static parameters (less 3 of gauge) against N P means with 2 P pose unknowns; and
+    // each accelerometer needs its scale factor, bias and two tilts from at least 4 poses.
+    let needed = 4_usize.max(((4 * n).saturating_sub(3)).div_ceil(n.saturating_sub(2).max(1)) + 1);
+    if poses < needed {
+        return Err(FitError::TooFewPoses { found: poses, needed });
+    }
+    let with_dynamic = dynamic.is_some_and(|d| d.samples() > 0);
+    let reference_rate = dynamic.and_then(|d| d.reference_rate_rad_s.as_ref()).is_some();
+    let gauge =
+        Gauge { rotation: !(with_dynamic && reference_rate), translation: with_dynamic, scale: with_dynamic && !reference_rate };
+    let dim = PER_ACCEL * n + 2 * poses;
+    let mut active = vec![true; dim];
+    if !with_dynamic {
+        for j in 0..n {
+            for p in 4..7 {
+                active[PER_ACCEL * j + p] = false;
+            }
+        }
+    }
+    let constraints = gauge.constraints(array, with_dynamic, 2 * poses);
+
+    let mut state = State {
+        params: SensorSet::nominal(n),
+        up: initial_up(array, stat),
+        motion: dynamic.map(|d| vec![SampleMotion::default(); d.samples()]).unwrap_or_default(),
+    };
+    let mut weights = Weights {
+        static_w: DMatrix::from_fn(poses, n, |p, j| stat.counts[p] as f64 / stat.sigma[j].powi(2)),
+        dynamic_w: stat.sigma.iter().map(|s| 1.0 / (s * s)).collect(),
+    };
+    let mut static_factor = 1.0;
+    let mut iterations = 0;
+    let mut converged = false;
+
+    // First the static phase alone (locations held), then both phases.
+    let static_only_active: Vec<bool> =
+        (0..dim).map(|i| active[i] && (i >= PER_ACCEL * n || i % PER_ACCEL < 4)).collect();
+    let static_gauge = Gauge { rotation: true, translation: false, scale: false };
+    let static_constraints = static_gauge.constraints(array, false, 2 * poses);
+    gauss_newton(array, stat, None, settings, &weights, &static_only_active, &static_constraints, &mut state, 30);
+
+    if let Some(d) = dynamic.filter(|_| with_dynamic) {
+        initial_motion(array, d, &weights, &mut state);
+    }
+    for _round in 0..6 {
+        let (it, ok) =
+            gauss_newton(array, stat, dynamic, settings, &weights, &active, &constraints, &mut state, settings.max_iterations);
+        iterations += it;
+        converged = ok;
+        // Variance components.
+        let (chi2, dof) = static_chi2(array, stat, &state, settings, stat.counts.as_slice());
+        let new_factor = (chi2 / dof).max(1.0);
+        let mut changed = (new_factor / static_factor - 1.0).abs() > 0.01;
+        static_factor = new_factor;
+        weights.static_w = DMatrix::from_fn(poses, n, |p, j| stat.counts[p] as f64 / (stat.sigma[j].powi(2) * static_factor));
+        if let Some(d) = dynamic.filter(|_| with_dynamic) {
+            let (rms, _) = dynamic_residuals(array, d, &state);
+            let local = if reference_rate { 6.0 } else { 9.0 };
+            for j in 0..n {
+                let leverage = dynamic_leverage(d, j, local);
+                let var = rms[j].powi(2) * leverage;
+                let var = var.max(stat.sigma[j].powi(2));
+                let w = 1.0 / var;
+                changed |= (w / weights.dynamic_w[j] - 1.0).abs() > 0.01;
+                weights.dynamic_w[j] = w;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+
+    // Covariance and null directions at the solution.
+    let normal = normal_equations(array, stat, dynamic.filter(|_| with_dynamic), settings, &weights, &state, &active);
+    let null_directions = count_null(&normal.h, &active);
+    let covariance = constrained_inverse(&normal.h, &constraints, &active)?;
+    let omega_sigma_rad_s = match dynamic.filter(|_| with_dynamic) {
+        Some(d) => motion_sigmas(array, d, &weights, &state, reference_rate),
+        None => Vec::new(),
+    };
+    let (chi2, dof) = static_chi2(array, stat, &state, settings, stat.counts.as_slice());
+    let static_residual_rms_m_s2 = static_rms(array, stat, &state, settings);
+    let (dyn_rms, dyn_chi2_dof) = match dynamic.filter(|_| with_dynamic) {
+        Some(d) => {
+            let (rms, _) = dynamic_residuals(array, d, &state);
+            let local = if reference_rate { 6.0 } else { 9.0 };
+            let mut num = 0.0;
+            let mut den = 0.0;
+            for j in 0..n {
+                let count = (0..d.samples()).filter(|&i| d.used[i * n + j]).count() as f64;
+                num += rms[j].powi(2) * count / stat.sigma[j].powi(2);
+                den += count / dynamic_leverage(d, j, local);
+            }
+            (rms, num / den)
+        }
+        None => (vec![f64::NAN; n], f64::NAN),
+    };
+    Ok(Fit {
+        params: state.params,
+        up: state.up,
+        motion: state.motion,
+        omega_sigma_rad_s,
+        covariance,
+        locations_identified: with_dynamic,
+        gauge,
+        null_directions,
+        static_chi2_dof: chi2 / dof,
+        static_residual_rms_m_s2,
+        static_variance_factor: static_factor,
+        dynamic_sigma_m_s2: weights.dynamic_w.iter().map(|w| 1.0 / w.sqrt()).collect(),
+        dynamic_residual_rms_m_s2: dyn_rms,
+        dynamic_chi2_dof: dyn_chi2_dof,
+        iterations,
+        converged,
+    })
+}
+
+/// `n_j / (n_j - leverage_j)` for accelerometer j: the factor from the residual mean square to
+/// the noise variance when each sample spends `local` degrees of freedom evenly over its outputs.
+fn dynamic_leverage(d: &DynamicData, j: usize, local: f64) -> f64 {
+    let n = d.outputs.ncols();
+    let mut count = 0.0;
+    let mut lev = 0.0;
+    for i in 0..d.samples() {
+        if d.used[i * n + j] {
+            let m = (0..n).filter(|&k| d.used[i * n + k]).count() as f64;
+            count += 1.0;
+            lev += local / m;
+        }
+    }
+    if count > lev { count / (count - lev) } else { f64::INFINITY }
+}
+
+/// Motion of every dynamic sample from scratch: the better of the linear guess and the previous
+/// sample's motion advanced by its angular acceleration, refined; then signs by continuity.
+fn initial_motion(array: &Array, d: &DynamicData, w: &Weights, state: &mut State) {
+    state.motion = motion_from_scratch(array, d, &w.dynamic_w, &state.params);
+}
+
+/// The motion of every sample of `d` given the sensor parameters, from scratch: the better of the
+/// linear guess and the previous sample's motion advanced by its angular acceleration, refined;
+/// then rate signs by continuity.
+pub fn motion_from_scratch(array: &Array, d: &DynamicData, dynamic_w: &[f64], params: &SensorSet) -> Vec<SampleMotion> {
+    let w = Weights { static_w: DMatrix::zeros(0, 0), dynamic_w: dynamic_w.to_vec() };
+    let mut state = State { params: params.clone(), up: Vec::new(), motion: vec![SampleMotion::default(); d.samples()] };
+    let state = &mut state;
+    let sens = sensors(array, &state.params);
+    let n = array.len();
+    for (s, e) in d.runs() {
+        for i in s..e {
+            let row: Vec<f64> = d.outputs.row(i).iter().copied().collect();
+            let data = SampleData { outputs: &row, used: &d.used[i * n..(i + 1) * n], weights: &w.dynamic_w };
+            let fixed = d.reference_rate_rad_s.as_ref().map(|r| r[i]);
+            let mut best: Option<(SampleMotion, f64)> = None;
+            let mut starts = vec![motion::linear_guess(&sens, &data)];
+            if i > s {
+                let prev = state.motion[i - 1];
+                let dt = d.t_s[i] - d.t_s[i - 1];
+                starts.push(SampleMotion { omega_rad_s: prev.omega_rad_s + prev.alpha_rad_s2 * dt, ..prev });
+            }
+            for mut st in starts {
+                if let Some(wr) = fixed {
+                    st.omega_rad_s = wr;
+                }
+                let (m, c, _) = motion::solve(&sens, &data, st, fixed.is_some());
+                if best.is_none_or(|(_, bc)| c < bc) {
+                    best = Some((m, c));
+                }
+            }
+            state.motion[i] = best.map(|b| b.0).unwrap_or_default();
+        }
+        if d.reference_rate_rad_s.is_none() {
+            motion::orient_run(&d.t_s[s..e], &mut state.motion[s..e]);
+        }
+    }
+    std::mem::take(&mut state.motion)
+}
+
+/// Re-solves every sample's motion from its current value (parallel, independent per sample).
+fn refine_motion(array: &Array, d: &DynamicData, w: &Weights, params: &SensorSet, motion_in: &[SampleMotion]) -> Vec<SampleMotion> {
+    let sens = sensors(array, params);
+    let n = array.len();
+    let fixed = d.reference_rate_rad_s.is_some();
+    let mut out: Vec<SampleMotion> = (0..d.samples())
+        .into_par_iter()
+        .map(|i| {
+            let row: Vec<f64> = d.outputs.row(i).iter().copied().collect();
+            let data = SampleData { outputs: &row, used: &d.used[i * n..(i + 1) * n], weights: &w.dynamic_w };
+            motion::solve(&sens, &data, motion_in[i], fixed).0
+        })
+        .collect();
+    if !fixed {
+        for (s, e) in d.runs() {
+            motion::orient_run(&d.t_s[s..e], &mut out[s..e]);
+        }
+    }
+    out
+}
+
+#[allow(clippy::too_many_arguments)]
+fn gauss_newton(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: Option<&DynamicData>,
+    settings: &FitSettings,
+    w: &Weights,
+    active: &[bool],
+    constraints: &DMatrix<f64>,
+    state: &mut State,
+    max_iterations: usize,
+) -> (usize, bool) {
+    let dynamic = dynamic.filter(|d| d.samples() > 0);
+    let mut lambda = 1e-6;
+    let mut cost = total_cost(array, stat, dynamic, settings, w, state);
+    for it in 0..max_iterations {
+        let normal = normal_equations(array, stat, dynamic, settings, w, state, active);
+        let mut accepted = false;
+        for _ in 0..12 {
+            let Some(step) = kkt_step(&normal, constraints, active, state, lambda, array.len()) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let trial = apply_step(array, stat, dynamic, w, state, &step);
+            let trial_cost = total_cost(array, stat, dynamic, settings, w, &trial);
+            if trial_cost <= cost {
+                let decrease = cost - trial_cost;
+                *state = trial;
+                let done = decrease <= 1e-10 * cost.max(1e-300);
+                cost = trial_cost;
+                lambda = (lambda * 0.1).max(1e-12);
+                accepted = true;
+                if done {
+                    return (it + 1, true);
+                }
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !accepted {
+            // No step lowers the cost: at the minimum to working precision.
+            return (it + 1, true);
+        }
+    }
+    (max_iterations, false)
+}
+
+fn apply_step(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: Option<&DynamicData>,
+    w: &Weights,
+    state: &State,
+    step: &DVector<f64>,
+) -> State {
+    let n = array.len();
+    let mut params = state.params.clone();
+    for j in 0..n {
+        for p in 0..PER_ACCEL {
+            params.add(j, p, step[PER_ACCEL * j + p]);
+        }
+    }
+    let up = state
+        .up
+        .iter()
+        .enumerate()
+        .map(|(p, u)| {
+            let (e1, e2) = tilt_basis(u);
+            (u + e1 * step[PER_ACCEL * n + 2 * p] + e2 * step[PER_ACCEL * n + 2 * p + 1]).normalize()
+        })
+        .collect();
+    let _ = stat;
+    let motion = match dynamic {
+        Some(d) => refine_motion(array, d, w, &params, &state.motion),
+        None => state.motion.clone(),
+    };
+    State { params, up, motion }
+}
+
+fn total_cost(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: Option<&DynamicData>,
+    settings: &FitSettings,
+    w: &Weights,
+    state: &State,
+) -> f64 {
+    let sens = sensors(array, &state.params);
+    let mut c = 0.0;
+    for (p, u) in state.up.iter().enumerate() {
+        let q = u * settings.gravity_m_s2;
+        for (j, s) in sens.iter().enumerate() {
+            let r = stat.means[(p, j)] - s.output(&q);
+            c += w.static_w[(p, j)] * r * r;
+        }
+    }
+    if let Some(d) = dynamic {
+        let n = array.len();
+        c += (0..d.samples())
+            .into_par_iter()
+            .map(|i| {
+                let row: Vec<f64> = d.outputs.row(i).iter().copied().collect();
+                let data = SampleData { outputs: &row, used: &d.used[i * n..(i + 1) * n], weights: &w.dynamic_w };
+                motion::cost(&sens, &data, &state.motion[i])
+            })
+            .collect::<Vec<f64>>()
+            .iter()
+            .sum::<f64>();
+    }
+    c
+}
+
+/// Normal equations of the parameters with the motion eliminated (Schur complement).
+fn normal_equations(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: Option<&DynamicData>,
+    settings: &FitSettings,
+    w: &Weights,
+    state: &State,
+    active: &[bool],
+) -> Normal {
+    let n = array.len();
+    let na = PER_ACCEL * n;
+    let dim = na + 2 * state.up.len();
+    let sens = sensors(array, &state.params);
+    let mut h = DMatrix::zeros(dim, dim);
+    let mut g = DVector::zeros(dim);
+    for (p, u) in state.up.iter().enumerate() {
+        let q = u * settings.gravity_m_s2;
+        let (e1, e2) = tilt_basis(u);
+        for (j, s) in sens.iter().enumerate() {
+            let r = stat.means[(p, j)] - s.output(&q);
+            let d4 = s.d_intrinsic(&q);
+            let dpose = [s.k * settings.gravity_m_s2 * s.axis.dot(&e1), s.k * settings.gravity_m_s2 * s.axis.dot(&e2)];
+            let idx: [usize; 6] = [PER_ACCEL * j, PER_ACCEL * j + 1, PER_ACCEL * j + 2, PER_ACCEL * j + 3, na + 2 * p, na + 2 * p + 1];
+            let val = [d4[0], d4[1], d4[2], d4[3], dpose[0], dpose[1]];
+            let wt = w.static_w[(p, j)];
+            for a in 0..6 {
+                g[idx[a]] += wt * val[a] * r;
+                for b in 0..6 {
+                    h[(idx[a], idx[b])] += wt * val[a] * val[b];
+                }
+            }
+        }
+    }
+    if let Some(d) = dynamic {
+        let fixed = d.reference_rate_rad_s.is_some();
+        let chunk = 256;
+        let parts: Vec<(DMatrix<f64>, DVector<f64>)> = (0..d.samples().div_ceil(chunk))
+            .into_par_iter()
+            .map(|c| {
+                let mut ha = DMatrix::zeros(na, na);
+                let mut ga = DVector::zeros(na);
+                let mut mt = DMatrix::zeros(9, na);
+                for i in c * chunk..((c + 1) * chunk).min(d.samples()) {
+                    accumulate_sample(&sens, d, i, &state.motion[i], &w.dynamic_w, fixed, &mut ha, &mut ga, &mut mt);
+                }
+                (ha, ga)
+            })
+            .collect();
+        for (ha, ga) in parts {
+            let mut hv = h.view_mut((0, 0), (na, na));
+            hv += &ha;
+            let mut gv = g.rows_mut(0, na);
+            gv += &ga;
+        }
+    }
+    for i in 0..dim {
+        if !active[i] {
+            h.row_mut(i).fill(0.0);
+            h.column_mut(i).fill(0.0);
+            g[i] = 0.0;
+        }
+    }
+    Normal { h, g }
+}
+
+/// Adds one dynamic sample's contribution to the reduced normal equations of the accelerometer
+/// parameters.
+#[allow(clippy::too_many_arguments)]
+fn accumulate_sample(
+    sens: &[Sensor],
+    d: &DynamicData,
+    i: usize,
+    m: &SampleMotion,
+    weights: &[f64],
+    fixed: bool,
+    h: &mut DMatrix<f64>,
+    g: &mut DVector<f64>,
+    mt: &mut DMatrix<f64>,
+) {
+    let n = sens.len();
+    let mut hll = SMatrix::<f64, 9, 9>::zeros();
+    let mut gl = SVector9::zeros();
+    mt.fill(0.0);
+    for (j, s) in sens.iter().enumerate() {
+        if !d.used[i * n + j] {
+            continue;
+        }
+        let q = m.specific_force_m_s2(&s.position_m);
+        let r = d.outputs[(i, j)] - s.output(&q);
+        let wt = weights[j];
+        let dl = SVector9::from(s.d_motion(m));
+        let d4 = s.d_intrinsic(&q);
+        let dloc = s.d_location(m);
+        let dg = [d4[0], d4[1], d4[2], d4[3], dloc.x, dloc.y, dloc.z];
+        hll.ger(wt, &dl, &dl, 1.0);
+        gl.axpy(wt * r, &dl, 1.0);
+        let base = PER_ACCEL * j;
+        for a in 0..PER_ACCEL {
+            g[base + a] += wt * dg[a] * r;
+            for b in 0..PER_ACCEL {
+                h[(base + a, base + b)] += wt * dg[a] * dg[b];
+            }
+            for k in 0..9 {
+                mt[(k, base + a)] += wt * dl[k] * dg[a];
+            }
+        }
+    }
+    if fixed {
+        for k in 6..9 {
+            hll.row_mut(k).fill(0.0);
+            hll.column_mut(k).fill(0.0);
+            hll[(k, k)] = 1.0;
+            gl[k] = 0.0;
+            mt.row_mut(k).fill(0.0);
+        }
+    }
+    let Some(chol) = hll.cholesky() else { return };
+    // B^T = L^-1 M^T; H -= B B^T; g -= B L^-1 g_l.
+    let l = chol.l();
+    let Some(linv) = l.try_inverse() else { return };
+    let linv = nalgebra::DMatrix::from_column_slice(9, 9, linv.as_slice());
+    let bt = &linv * &*mt;
+    let y = &linv * DVector::from_column_slice(gl.as_slice());
+    h.gemm_tr(-1.0, &bt, &bt, 1.0);
+    g.gemv_tr(-1.0, &bt, &y, 1.0);
+}
+
+type SVector9 = nalgebra::SVector<f64, 9>;
+
+/// Solves the damped, gauge-constrained step; `None` when singular.
+fn kkt_step(
+    normal: &Normal,
+    constraints: &DMatrix<f64>,
+    active: &[bool],
+    state: &State,
+    lambda: f64,
+    n: usize,
+) -> Option<DVector<f64>> {
+    let dim = normal.h.nrows();
+    let nc = constraints.nrows();
+    let mut k = DMatrix::zeros(dim + nc, dim + nc);
+    let mut rhs = DVector::zeros(dim + nc);
+    k.view_mut((0, 0), (dim, dim)).copy_from(&normal.h);
+    for i in 0..dim {
+        if active[i] {
+            k[(i, i)] += lambda * normal.h[(i, i)].max(1e-300);
+        } else {
+            k[(i, i)] = 1.0;
+        }
+    }
+    k.view_mut((dim, 0), (nc, dim)).copy_from(constraints);
+    k.view_mut((0, dim), (dim, nc)).copy_from(&constraints.transpose());
+    rhs.rows_mut(0, dim).copy_from(&normal.g);
+    // Constraint on the values: C (x + step) = 0.
+    let mut x = DVector::zeros(dim);
+    for j in 0..n {
+        for p in 0..PER_ACCEL {
+            x[PER_ACCEL * j + p] = state.params.get(j, p);
+        }
+    }
+    let cx = constraints * &x;
+    rhs.rows_mut(dim, nc).copy_from(&(-cx));
+    let sol = k.lu().solve(&rhs)?;
+    let step = sol.rows(0, dim).into_owned();
+    step.iter().all(|v| v.is_finite()).then_some(step)
+}
+
+/// Covariance in the gauge: the top-left block of the inverse KKT matrix.
+fn constrained_inverse(h: &DMatrix<f64>, constraints: &DMatrix<f64>, active: &[bool]) -> Result<DMatrix<f64>, FitError> {
+    let dim = h.nrows();
+    let nc = constraints.nrows();
+    let mut k = DMatrix::zeros(dim + nc, dim + nc);
+    k.view_mut((0, 0), (dim, dim)).copy_from(h);
+    for i in 0..dim {
+        if !active[i] {
+            k[(i, i)] = 1.0;
+        }
+    }
+    k.view_mut((dim, 0), (nc, dim)).copy_from(constraints);
+    k.view_mut((0, dim), (dim, nc)).copy_from(&constraints.transpose());
+    let inv = k.try_inverse().ok_or_else(|| FitError::Singular("the constrained Fisher information".into()))?;
+    let mut cov = inv.view((0, 0), (dim, dim)).into_owned();
+    for i in 0..dim {
+        if !active[i] {
+            cov.row_mut(i).fill(f64::NAN);
+            cov.column_mut(i).fill(f64::NAN);
+        }
+    }
+    if (0..dim).any(|i| active[i] && !(cov[(i, i)] > 0.0)) {
+        return Err(FitError::Singular("a parameter's variance is not positive".into()));
+    }
+    Ok(cov)
+}
+
+/// Null directions of the (active part of the) Fisher information, after scaling by its diagonal.
+fn count_null(h: &DMatrix<f64>, active: &[bool]) -> usize {
+    let idx: Vec<usize> = (0..h.nrows()).filter(|&i| active[i]).collect();
+    let m = idx.len();
+    let scale: Vec<f64> = idx.iter().map(|&i| h[(i, i)].max(1e-300).sqrt()).collect();
+    let s = DMatrix::from_fn(m, m, |a, b| h[(idx[a], idx[b])] / (scale[a] * scale[b]));
+    let eig = s.symmetric_eigenvalues();
+    let max = eig.iter().cloned().fold(0.0, f64::max);
+    eig.iter().filter(|&&e| e < 1e-9 * max).count()
+}
+
+fn static_chi2(array: &Array, stat: &StaticData, state: &State, settings: &FitSettings, counts: &[usize]) -> (f64, f64) {
+    let sens = sensors(array, &state.params);
+    let n = array.len();
+    let mut chi2 = 0.0;
+    for (p, u) in state.up.iter().enumerate() {
+        let q = u * settings.gravity_m_s2;
+        for (j, s) in sens.iter().enumerate() {
+            let r = stat.means[(p, j)] - s.output(&q);
+            chi2 += r * r * counts[p] as f64 / stat.sigma[j].powi(2);
+        }
+    }
+    let poses = state.up.len();
+    let dof = (n * poses) as f64 - (4 * n + 2 * poses) as f64 + 3.0;
+    (chi2, dof.max(1.0))
+}
+
+fn static_rms(array: &Array, stat: &StaticData, state: &State, settings: &FitSettings) -> f64 {
+    let sens = sensors(array, &state.params);
+    let mut s = 0.0;
+    let mut c = 0.0;
+    for (p, u) in state.up.iter().enumerate() {
+        let q = u * settings.gravity_m_s2;
+        for (j, sn) in sens.iter().enumerate() {
+            s += (stat.means[(p, j)] - sn.output(&q)).powi(2);
+            c += 1.0;
+        }
+    }
+    (s / c).sqrt()
+}
+
+/// Per accelerometer: residual RMS of the used dynamic samples, and their count.
+fn dynamic_residuals(array: &Array, d: &DynamicData, state: &State) -> (Vec<f64>, Vec<usize>) {
+    let sens = sensors(array, &state.params);
+    let n = array.len();
+    let mut s = vec![0.0; n];
+    let mut c = vec![0usize; n];
+    for i in 0..d.samples() {
+        let m = &state.motion[i];
+        for (j, sn) in sens.iter().enumerate() {
+            if d.used[i * n + j] {
+                s[j] += (d.outputs[(i, j)] - sn.output(&m.specific_force_m_s2(&sn.position_m))).powi(2);
+                c[j] += 1;
+            }
+        }
+    }
+    ((0..n).map(|j| if c[j] > 0 { (s[j] / c[j] as f64).sqrt() } else { f64::NAN }).collect(), c)
+}
+
+fn motion_sigmas(array: &Array, d: &DynamicData, w: &Weights, state: &State, fixed: bool) -> Vec<Vector3<f64>> {
+    let sens = sensors(array, &state.params);
+    let n = array.len();
+    (0..d.samples())
+        .into_par_iter()
+        .map(|i| {
+            if fixed {
+                return Vector3::zeros();
+            }
+            let row: Vec<f64> = d.outputs.row(i).iter().copied().collect();
+            let data = SampleData { outputs: &row, used: &d.used[i * n..(i + 1) * n], weights: &w.dynamic_w };
+            let (_, _, h) = motion::solve(&sens, &data, state.motion[i], false);
+            match h.try_inverse() {
+                Some(inv) => Vector3::new(inv[(6, 6)].sqrt(), inv[(7, 7)].sqrt(), inv[(8, 8)].sqrt()),
+                None => Vector3::repeat(f64::NAN),
+            }
+        })
+        .collect()
+}

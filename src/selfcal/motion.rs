@@ -1,0 +1,163 @@
+//! The rigid motion at one sample from the accelerometers alone: specific force at the origin
+//! `f`, angular acceleration `alpha` and angular rate `omega` (9 unknowns from N >= 9 outputs), by
+//! Gauss-Newton on the model of `selfcal::model`.
+//!
+//! The outputs are even in `omega` (the centripetal term `W = w w^T - |w|^2 I` is quadratic), so
+//! one sample gives the rate only up to its sign. The sign is carried by continuity: within a
+//! run of samples, each rate takes the sign closer to the previous rate advanced by the mean
+//! angular acceleration over the step, and the run's overall sign is the one for which the rate's
+//! increments agree with `alpha dt` ([`orient_run`]).
+//!
+//! A first guess comes from the linear model with a general 3x3 matrix `A = [alpha x] + W` (12
+//! unknowns): `omega` is the eigenvector of the symmetric part of `A` with the largest eigenvalue,
+//! and `|omega|^2` minus the mean of the other two.
+
+use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SVector, Vector3};
+
+use super::model::{SampleMotion, Sensor};
+
+/// One sample's corrected data: outputs, which are used (not clipped), and their weights.
+pub struct SampleData<'a> {
+    pub outputs: &'a [f64],
+    pub used: &'a [bool],
+    pub weights: &'a [f64],
+}
+
+/// Weighted misfit of a motion.
+pub fn cost(sensors: &[Sensor], data: &SampleData, m: &SampleMotion) -> f64 {
+    let mut c = 0.0;
+    for (j, s) in sensors.iter().enumerate() {
+        if data.used[j] {
+            let r = data.outputs[j] - s.output(&m.specific_force_m_s2(&s.position_m));
+            c += data.weights[j] * r * r;
+        }
+    }
+    c
+}
+
+/// Gauss-Newton from `start`; with `omega_fixed` only `f` and `alpha` are solved (then the
+/// model is linear and one step is exact). Returns the motion, its cost and the local normal
+/// matrix (the inverse is the motion's covariance given the sensor parameters).
+pub fn solve(
+    sensors: &[Sensor],
+    data: &SampleData,
+    start: SampleMotion,
+    omega_fixed: bool,
+) -> (SampleMotion, f64, SMatrix<f64, 9, 9>) {
+    let dim = if omega_fixed { 6 } else { 9 };
+    let mut m = start;
+    let mut c = cost(sensors, data, &m);
+    let mut h = SMatrix::<f64, 9, 9>::zeros();
+    for _ in 0..30 {
+        h.fill(0.0);
+        let mut g = SVector::<f64, 9>::zeros();
+        for (j, s) in sensors.iter().enumerate() {
+            if !data.used[j] {
+                continue;
+            }
+            let r = data.outputs[j] - s.output(&m.specific_force_m_s2(&s.position_m));
+            let d = SVector::<f64, 9>::from(s.d_motion(&m));
+            let w = data.weights[j];
+            h.ger(w, &d, &d, 1.0);
+            g.axpy(w * r, &d, 1.0);
+        }
+        if omega_fixed {
+            for i in 6..9 {
+                h.row_mut(i).fill(0.0);
+                h.column_mut(i).fill(0.0);
+                h[(i, i)] = 1.0;
+                g[i] = 0.0;
+            }
+        }
+        let Some(chol) = h.cholesky() else { break };
+        let step = chol.solve(&g);
+        let mut lambda = 1.0;
+        let mut improved = false;
+        for _ in 0..8 {
+            let trial = SampleMotion {
+                f_m_s2: m.f_m_s2 + step.fixed_rows::<3>(0) * lambda,
+                alpha_rad_s2: m.alpha_rad_s2 + step.fixed_rows::<3>(3) * lambda,
+                omega_rad_s: m.omega_rad_s + step.fixed_rows::<3>(6) * lambda,
+            };
+            let ct = cost(sensors, data, &trial);
+            if ct <= c {
+                let small = c - ct <= 1e-12 * c.max(1e-300);
+                m = trial;
+                c = ct;
+                improved = !small;
+                break;
+            }
+            lambda *= 0.5;
+        }
+        if !improved || dim == 6 {
+            break;
+        }
+    }
+    // The normal matrix at the solution.
+    h.fill(0.0);
+    for (j, s) in sensors.iter().enumerate() {
+        if data.used[j] {
+            let d = SVector::<f64, 9>::from(s.d_motion(&m));
+            h.ger(data.weights[j], &d, &d, 1.0);
+        }
+    }
+    (m, c, h)
+}
+
+/// A first guess of the motion from the linear 12-unknown model (see the module docs).
+pub fn linear_guess(sensors: &[Sensor], data: &SampleData) -> SampleMotion {
+    let rows: Vec<usize> = (0..sensors.len()).filter(|&j| data.used[j]).collect();
+    let mut a = DMatrix::zeros(rows.len(), 12);
+    let mut y = DVector::zeros(rows.len());
+    for (i, &j) in rows.iter().enumerate() {
+        let s = &sensors[j];
+        let sw = data.weights[j].sqrt();
+        for c in 0..3 {
+            a[(i, c)] = s.k * s.axis[c] * sw;
+            for d in 0..3 {
+                a[(i, 3 + 3 * c + d)] = s.k * s.axis[c] * s.position_m[d] * sw;
+            }
+        }
+        y[i] = (data.outputs[j] - s.k * s.b_m_s2) * sw;
+    }
+    let Ok(x) = a.svd(true, true).solve(&y, 1e-10) else { return SampleMotion::default() };
+    let full = Matrix3::from_row_slice(&x.as_slice()[3..12]);
+    let sym = (full + full.transpose()) * 0.5;
+    let anti = (full - full.transpose()) * 0.5;
+    let eig = sym.symmetric_eigen();
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&p, &q| eig.eigenvalues[p].total_cmp(&eig.eigenvalues[q]));
+    let w2 = (eig.eigenvalues[order[2]] - 0.5 * (eig.eigenvalues[order[0]] + eig.eigenvalues[order[1]])).max(0.0);
+    let dir = eig.eigenvectors.column(order[2]).into_owned();
+    SampleMotion {
+        f_m_s2: Vector3::new(x[0], x[1], x[2]),
+        alpha_rad_s2: Vector3::new(anti[(2, 1)], anti[(0, 2)], anti[(1, 0)]),
+        omega_rad_s: dir * w2.sqrt(),
+    }
+}
+
+/// Flips rate signs along a run of consecutive samples so that each rate is the one closer to
+/// the previous rate advanced by the mean angular acceleration, then flips the whole run if its
+/// rate increments disagree with the angular accelerations.
+pub fn orient_run(t_s: &[f64], motion: &mut [SampleMotion]) {
+    for i in 1..motion.len() {
+        let dt = t_s[i] - t_s[i - 1];
+        let predicted =
+            motion[i - 1].omega_rad_s + (motion[i - 1].alpha_rad_s2 + motion[i].alpha_rad_s2) * (0.5 * dt);
+        let w = motion[i].omega_rad_s;
+        if (w - predicted).norm_squared() > (-w - predicted).norm_squared() {
+            motion[i].omega_rad_s = -w;
+        }
+    }
+    let mut agreement = 0.0;
+    for i in 1..motion.len() {
+        let dt = t_s[i] - t_s[i - 1];
+        let dw = motion[i].omega_rad_s - motion[i - 1].omega_rad_s;
+        agreement += dw.dot(&(motion[i - 1].alpha_rad_s2 + motion[i].alpha_rad_s2)) * (0.5 * dt);
+    }
+    if agreement < 0.0 {
+        for m in motion.iter_mut() {
+            m.omega_rad_s = -m.omega_rad_s;
+        }
+    }
+}

@@ -1,0 +1,212 @@
+//! A recording of a real (or simulated) array: one row per sample, the accelerometer outputs
+//! read from the columns the array file names, the time `t_s`, an optional `step` column (a
+//! lab's own segmentation: rows of one step are one static pose; a negative step is dynamic), and
+//! the reference gyroscopes if the array file lists any.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{DMatrix, Vector3};
+
+use crate::array::Array;
+use crate::io::table::{Table, TableError};
+
+/// A reference gyroscope axis (array frame, unit), the column it is read from and its range.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReferenceGyro {
+    pub axis: Vector3<f64>,
+    pub column: String,
+    pub range_rad_s: f64,
+}
+
+/// An array with what a recording needs: the column of every accelerometer, its range, and the
+/// reference gyroscopes.
+#[derive(Debug, Clone)]
+pub struct RecordingArray {
+    pub array: Array,
+    pub accelerometer_columns: Vec<String>,
+    /// Outputs with `|s| >= range` are clipped (infinite: never).
+    pub ranges_m_s2: Vec<f64>,
+    pub gyroscopes: Vec<ReferenceGyro>,
+    /// The array file, for messages.
+    pub path: PathBuf,
+}
+
+/// A recording that cannot be used; names the file, the column and the row where there is one.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RecordingError {
+    #[error(transparent)]
+    Table(#[from] TableError),
+    #[error("{}: missing column(s) {} named by the array file {}", path.display(), missing.join(", "), array.display())]
+    MissingColumns { path: PathBuf, array: PathBuf, missing: Vec<String> },
+    #[error("{}: data row {row}, column `{column}`: {problem}", path.display())]
+    Value { path: PathBuf, row: usize, column: String, problem: String },
+    #[error("{}: {problem}", path.display())]
+    Unusable { path: PathBuf, problem: String },
+}
+
+/// The samples of a recording.
+#[derive(Debug, Clone)]
+pub struct Recording {
+    pub path: PathBuf,
+    pub t_s: Vec<f64>,
+    /// Samples x accelerometers, output units (m/s^2 for a scaled board).
+    pub outputs: DMatrix<f64>,
+    /// Samples x accelerometers: the output is at or beyond its range.
+    pub clipped: Vec<bool>,
+    /// The `step` column, if the table has one.
+    pub step: Option<Vec<i64>>,
+    /// Reference angular rate in array axes (least squares over the gyroscope axes), rad/s, and
+    /// whether any gyroscope axis clipped at that sample. Empty without reference gyroscopes.
+    pub gyro_rate_rad_s: Vec<Vector3<f64>>,
+    pub gyro_clipped: Vec<bool>,
+}
+
+impl Recording {
+    pub fn samples(&self) -> usize {
+        self.t_s.len()
+    }
+    pub fn accelerometers(&self) -> usize {
+        self.outputs.ncols()
+    }
+    pub fn is_clipped(&self, i: usize, j: usize) -> bool {
+        self.clipped[i * self.accelerometers() + j]
+    }
+
+    /// Reads and checks a recording for `array`.
+    pub fn read(path: &Path, array: &RecordingArray) -> Result<Self, RecordingError> {
+        let table = Table::read(path)?;
+        Self::from_table(&table, array)
+    }
+
+    /// Checks a table against `array`: every named column present, no NaN or null, time strictly
+    /// increasing, not everything clipped.
+    pub fn from_table(table: &Table, array: &RecordingArray) -> Result<Self, RecordingError> {
+        let path = table.path.clone();
+        let mut missing = Vec::new();
+        let needed = std::iter::once("t_s".to_string())
+            .chain(array.accelerometer_columns.iter().cloned())
+            .chain(array.gyroscopes.iter().map(|g| g.column.clone()));
+        for c in needed {
+            if table.index(&c).is_none() {
+                missing.push(format!("`{c}`"));
+            }
+        }
+        if !missing.is_empty() {
+            return Err(RecordingError::MissingColumns { path, array: array.path.clone(), missing });
+        }
+        let rows = table.rows();
+        if rows < 2 {
+            return Err(RecordingError::Unusable { path, problem: format!("the table has {rows} row(s)") });
+        }
+        let finite_column = |name: &str| -> Result<&[f64], RecordingError> {
+            let k = table.index(name).unwrap_or(0);
+            let col = &table.data[k];
+            if let Some(row) = table.first_null_row[k] {
+                return Err(RecordingError::Value {
+                    path: path.clone(),
+                    row,
+                    column: name.into(),
+                    problem: "missing value (null)".into(),
+                });
+            }
+            if let Some(i) = col.iter().position(|v| !v.is_finite()) {
+                return Err(RecordingError::Value {
+                    path: path.clone(),
+                    row: i + 1,
+                    column: name.into(),
+                    problem: format!("{} is not a finite number", col[i]),
+                });
+            }
+            Ok(col)
+        };
+        let t_s = finite_column("t_s")?.to_vec();
+        if let Some(i) = t_s.windows(2).position(|w| w[1] <= w[0]) {
+            return Err(RecordingError::Value {
+                path,
+                row: i + 2,
+                column: "t_s".into(),
+                problem: format!("time does not increase ({} s after {} s)", t_s[i + 1], t_s[i]),
+            });
+        }
+        let n = array.accelerometer_columns.len();
+        let mut outputs = DMatrix::zeros(rows, n);
+        let mut clipped = vec![false; rows * n];
+        for (j, name) in array.accelerometer_columns.iter().enumerate() {
+            let col = finite_column(name)?;
+            for (i, &v) in col.iter().enumerate() {
+                outputs[(i, j)] = v;
+                clipped[i * n + j] = v.abs() >= array.ranges_m_s2[j];
+            }
+        }
+        if clipped.iter().all(|&c| c) {
+            return Err(RecordingError::Unusable {
+                path,
+                problem: "every accelerometer output is at or beyond its range (all clipped)".into(),
+            });
+        }
+        for (j, name) in array.accelerometer_columns.iter().enumerate() {
+            if (0..rows).all(|i| clipped[i * n + j]) {
+                return Err(RecordingError::Value {
+                    path,
+                    row: 1,
+                    column: name.clone(),
+                    problem: format!("every sample is at or beyond the range {} m/s^2 (clipped)", array.ranges_m_s2[j]),
+                });
+            }
+        }
+        let step = match table.index("step") {
+            None => None,
+            Some(_) => {
+                let col = finite_column("step")?;
+                if let Some(i) = col.iter().position(|v| v.fract() != 0.0) {
+                    return Err(RecordingError::Value {
+                        path,
+                        row: i + 1,
+                        column: "step".into(),
+                        problem: format!("{} is not a whole number", col[i]),
+                    });
+                }
+                Some(col.iter().map(|&v| v as i64).collect())
+            }
+        };
+        let (gyro_rate_rad_s, gyro_clipped) = if array.gyroscopes.is_empty() {
+            (Vec::new(), Vec::new())
+        } else {
+            let cols: Vec<&[f64]> =
+                array.gyroscopes.iter().map(|g| finite_column(&g.column)).collect::<Result<_, _>>()?;
+            let normal: nalgebra::Matrix3<f64> = array.gyroscopes.iter().map(|g| g.axis * g.axis.transpose()).sum();
+            let inv = normal.try_inverse().unwrap_or_else(nalgebra::Matrix3::zeros);
+            let mut rate = Vec::with_capacity(rows);
+            let mut clip = Vec::with_capacity(rows);
+            for i in 0..rows {
+                let mut b = Vector3::zeros();
+                let mut c = false;
+                for (g, col) in array.gyroscopes.iter().zip(&cols) {
+                    b += g.axis * col[i];
+                    c |= col[i].abs() >= g.range_rad_s;
+                }
+                rate.push(inv * b);
+                clip.push(c);
+            }
+            (rate, clip)
+        };
+        Ok(Self { path, t_s, outputs, clipped, step, gyro_rate_rad_s, gyro_clipped })
+    }
+
+    /// Checks that a second recording is of the same array (for held-out prediction).
+    pub fn same_array_as(&self, other: &Recording) -> Result<(), RecordingError> {
+        if self.accelerometers() != other.accelerometers() {
+            return Err(RecordingError::Unusable {
+                path: other.path.clone(),
+                problem: format!(
+                    "has {} accelerometers but {} has {}: not the same array",
+                    other.accelerometers(),
+                    self.path.display(),
+                    self.accelerometers()
+                ),
+            });
+        }
+        Ok(())
+    }
+}
