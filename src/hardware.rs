@@ -57,9 +57,8 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
     // Held-out recordings are read before any work, so a bad one stops the run at once.
     let mut held = Vec::new();
     for path in a.held_out {
-        let other = Recording::read(path, &array).map_err(|e| {
-            InputError::Other(format!("held-out recording for {}: {e}", a.recording.display()))
-        })?;
+        let other = Recording::read(path, &array)
+            .map_err(|e| InputError::Other(format!("held-out recording for {}: {e}", a.recording.display())))?;
         rec.same_array_as(&other).map_err(recording_error)?;
         held.push(other);
     }
@@ -131,10 +130,23 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
         if seg.from_step_column { " from the `step` column" } else { "" }
     );
     for (k, iv) in seg.static_intervals.iter().enumerate() {
-        let _ = writeln!(s, "  static {:>2}: {:>8.2} - {:>8.2} s ({:.1} s)", k + 1, t[iv.start], t[iv.end - 1], t[iv.end - 1] - t[iv.start]);
+        let _ = writeln!(
+            s,
+            "  static {:>2}: {:>8.2} - {:>8.2} s ({:.1} s)",
+            k + 1,
+            t[iv.start],
+            t[iv.end - 1],
+            t[iv.end - 1] - t[iv.start]
+        );
     }
     for iv in &seg.dynamic_intervals {
-        let _ = writeln!(s, "  dynamic:   {:>8.2} - {:>8.2} s ({:.1} s)", t[iv.start], t[iv.end - 1], t[iv.end - 1] - t[iv.start]);
+        let _ = writeln!(
+            s,
+            "  dynamic:   {:>8.2} - {:>8.2} s ({:.1} s)",
+            t[iv.start],
+            t[iv.end - 1],
+            t[iv.end - 1] - t[iv.start]
+        );
     }
     let _ = writeln!(
         s,

@@ -147,8 +147,9 @@ pub fn load_recording_array(path: &Path) -> Result<RecordingArray, ConfigError> 
     if !gyroscopes.is_empty() {
         let m: nalgebra::Matrix3<f64> = gyroscopes.iter().map(|g| g.axis * g.axis.transpose()).sum();
         if m.symmetric_eigenvalues().min() < 1e-6 {
-            return Err(Bad::new("gyroscope", "the reference gyroscopes' axes do not span three dimensions")
-                .in_file(path));
+            return Err(
+                Bad::new("gyroscope", "the reference gyroscopes' axes do not span three dimensions").in_file(path)
+            );
         }
     }
     let mut seen = std::collections::HashSet::new();

@@ -56,7 +56,8 @@ impl Table {
     pub fn read(path: &Path) -> Result<Self, TableError> {
         let is_parquet = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
         let mut table = if is_parquet { read_parquet(path)? } else { read_csv(path)? };
-        let keep: Vec<usize> = (0..table.names.len()).filter(|&k| !IGNORED.contains(&table.names[k].as_str())).collect();
+        let keep: Vec<usize> =
+            (0..table.names.len()).filter(|&k| !IGNORED.contains(&table.names[k].as_str())).collect();
         let table = Table {
             path: path.to_path_buf(),
             names: keep.iter().map(|&k| table.names[k].clone()).collect(),
@@ -167,10 +168,13 @@ fn read_parquet(path: &Path) -> Result<Table, TableError> {
                 data[k].extend(std::iter::repeat_n(0.0, col.len()));
                 continue;
             }
-            let as_f64: ArrayRef = arrow_cast::cast(col, &DataType::Float64)
-                .map_err(|e| TableError::Format { path: path.to_path_buf(), problem: format!("`{}`: {e}", names[k]) })?;
-            let a = as_f64.as_any().downcast_ref::<arrow_array::Float64Array>().ok_or_else(|| {
-                TableError::Format { path: path.to_path_buf(), problem: format!("`{}`: not castable to f64", names[k]) }
+            let as_f64: ArrayRef = arrow_cast::cast(col, &DataType::Float64).map_err(|e| TableError::Format {
+                path: path.to_path_buf(),
+                problem: format!("`{}`: {e}", names[k]),
+            })?;
+            let a = as_f64.as_any().downcast_ref::<arrow_array::Float64Array>().ok_or_else(|| TableError::Format {
+                path: path.to_path_buf(),
+                problem: format!("`{}`: not castable to f64", names[k]),
             })?;
             for i in 0..a.len() {
                 if a.is_null(i) {

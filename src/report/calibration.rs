@@ -4,9 +4,9 @@
 
 use std::path::PathBuf;
 
+use super::display_unit;
 use super::html::Page;
 use super::plot::{Item, Panel, render};
-use super::display_unit;
 use crate::io::csv::significant;
 use crate::selfcal::calibrate::Calibration;
 use crate::selfcal::model::{NAMES, PER_ACCEL, UNITS, sensors};
@@ -120,7 +120,9 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
         let rows: Vec<(Vec<String>, bool)> = g
             .by_rate
             .iter()
-            .map(|(lo, hi, c, d, r)| (vec![format!("{lo}-{hi}"), c.to_string(), significant(*d, 3), format!("{:.1}%", 100.0 * r)], false))
+            .map(|(lo, hi, c, d, r)| {
+                (vec![format!("{lo}-{hi}"), c.to_string(), significant(*d, 3), format!("{:.1}%", 100.0 * r)], false)
+            })
             .collect();
         page.table(&["reference rate (rad/s)", "samples", "RMS difference (rad/s)", "relative"], &rows);
         let bias = cal.gyro_bias_rad_s.unwrap_or_default();
@@ -134,14 +136,16 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
                 .map(|(k, &i)| (rec.gyro_rate_rad_s[i][axis] - bias[axis], fit.motion[k].omega_rad_s[axis]))
                 .step_by(3)
                 .collect();
-            let mut p = Panel::new(
-                format!("omega_{}", ["x", "y", "z"][axis]),
-                "gyroscopes (rad/s)",
-                "gyroscope-free (rad/s)",
-            );
+            let mut p =
+                Panel::new(format!("omega_{}", ["x", "y", "z"][axis]), "gyroscopes (rad/s)", "gyroscope-free (rad/s)");
             let lim = pts.iter().map(|(a, _)| a.abs()).fold(1.0, f64::max);
             p.items.push(Item::Points { label: None, points: pts, colour: axis });
-            p.items.push(Item::Line { label: Some("equal".into()), points: vec![(-lim, -lim), (lim, lim)], colour: 7, dashed: true });
+            p.items.push(Item::Line {
+                label: Some("equal".into()),
+                points: vec![(-lim, -lim), (lim, lim)],
+                colour: 7,
+                dashed: true,
+            });
             by_axis.push(p);
         }
         if let Ok(fig) = render(
@@ -156,7 +160,14 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
         }
     }
     if !panels.is_empty()
-        && let Ok(fig) = render("residuals", "Dynamic residuals", "Residual RMS of the dynamic fit by accelerometer against the static noise of one sample, and against the rate magnitude.", &panels, 2, (600, 380))
+        && let Ok(fig) = render(
+            "residuals",
+            "Dynamic residuals",
+            "Residual RMS of the dynamic fit by accelerometer against the static noise of one sample, and against the rate magnitude.",
+            &panels,
+            2,
+            (600, 380),
+        )
     {
         page.figure(&fig, None);
     }
@@ -181,7 +192,16 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
             })
             .collect();
         page.table(
-            &["recording", "static intervals", "static residual RMS (m/s^2)", "static noise RMS (m/s^2)", "static chi2/dof", "dynamic samples", "dynamic residual RMS (m/s^2)", "noise RMS (m/s^2)"],
+            &[
+                "recording",
+                "static intervals",
+                "static residual RMS (m/s^2)",
+                "static noise RMS (m/s^2)",
+                "static chi2/dof",
+                "dynamic samples",
+                "dynamic residual RMS (m/s^2)",
+                "noise RMS (m/s^2)",
+            ],
             &rows,
         );
     }
@@ -194,13 +214,30 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
         .zip(&fit.up)
         .enumerate()
         .map(|(k, (iv, u))| {
-            (vec![format!("static {}", k + 1), format!("{:.2}", t[iv.start]), format!("{:.2}", t[iv.end - 1]), iv.len().to_string(), format!("({:.4}, {:.4}, {:.4})", u.x, u.y, u.z)], false)
+            (
+                vec![
+                    format!("static {}", k + 1),
+                    format!("{:.2}", t[iv.start]),
+                    format!("{:.2}", t[iv.end - 1]),
+                    iv.len().to_string(),
+                    format!("({:.4}, {:.4}, {:.4})", u.x, u.y, u.z),
+                ],
+                false,
+            )
         })
         .chain(cal.segmentation.dynamic_intervals.iter().map(|iv| {
-            (vec!["dynamic".into(), format!("{:.2}", t[iv.start]), format!("{:.2}", t[iv.end - 1]), iv.len().to_string(), String::new()], false)
+            (
+                vec![
+                    "dynamic".into(),
+                    format!("{:.2}", t[iv.start]),
+                    format!("{:.2}", t[iv.end - 1]),
+                    iv.len().to_string(),
+                    String::new(),
+                ],
+                false,
+            )
         }))
         .collect();
     page.table(&["interval", "start (s)", "end (s)", "samples", "up (array axes)"], &rows);
     page.finish()
 }
-

@@ -94,7 +94,10 @@ pub fn calibrate(
 ) -> Result<Calibration, CalibrateError> {
     let bad = |problem: String| CalibrateError::Recording { path: rec.path.clone(), problem };
     if settings.use_gyro && array.gyroscopes.is_empty() {
-        return Err(bad(format!("--use-gyro needs reference gyroscopes, and the array file {} lists none", array.path.display())));
+        return Err(bad(format!(
+            "--use-gyro needs reference gyroscopes, and the array file {} lists none",
+            array.path.display()
+        )));
     }
     let seg = segment(rec, &settings.detector).map_err(|e| bad(e.to_string()))?;
     let stat = static_data(rec, &seg.static_intervals);
@@ -215,8 +218,7 @@ fn gyro_check(rec: &Recording, index: &[usize], fit: &Fit, bias: &Vector3<f64>) 
     };
     let aligned: Vec<_> = pairs.iter().map(|(a, b)| (rot * a, *b)).collect();
     let (ad, _) = rms(&aligned);
-    let mut ratios: Vec<f64> =
-        pairs.iter().filter(|(_, b)| b.norm() > 1.0).map(|(a, b)| a.norm() / b.norm()).collect();
+    let mut ratios: Vec<f64> = pairs.iter().filter(|(_, b)| b.norm() > 1.0).map(|(a, b)| a.norm() / b.norm()).collect();
     ratios.sort_by(f64::total_cmp);
     let median_magnitude_ratio = ratios.get(ratios.len() / 2).copied().unwrap_or(f64::NAN);
     let edges = [0.0, 5.0, 10.0, 20.0, 30.0, f64::INFINITY];

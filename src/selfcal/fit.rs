@@ -128,7 +128,8 @@ fn initial_up(array: &Array, data: &StaticData) -> Vec<Vector3<f64>> {
     let inv = normal.try_inverse().unwrap_or_else(nalgebra::Matrix3::identity);
     (0..data.means.nrows())
         .map(|p| {
-            let b: Vector3<f64> = array.accelerometers().iter().enumerate().map(|(j, a)| a.axis * data.means[(p, j)]).sum();
+            let b: Vector3<f64> =
+                array.accelerometers().iter().enumerate().map(|(j, a)| a.axis * data.means[(p, j)]).sum();
             let v = inv * b;
             if v.norm() > 0.0 { v.normalize() } else { Vector3::z() }
         })
@@ -168,8 +169,11 @@ pub fn fit(
     }
     let with_dynamic = dynamic.is_some_and(|d| d.samples() > 0);
     let reference_rate = dynamic.and_then(|d| d.reference_rate_rad_s.as_ref()).is_some();
-    let gauge =
-        Gauge { rotation: !(with_dynamic && reference_rate), translation: with_dynamic, scale: with_dynamic && !reference_rate };
+    let gauge = Gauge {
+        rotation: !(with_dynamic && reference_rate),
+        translation: with_dynamic,
+        scale: with_dynamic && !reference_rate,
+    };
     let dim = PER_ACCEL * n + 2 * poses;
     let mut active = vec![true; dim];
     if !with_dynamic {
@@ -204,9 +208,18 @@ pub fn fit(
     if let Some(d) = dynamic.filter(|_| with_dynamic) {
         initial_motion(array, d, &weights, &mut state);
     }
-    for _round in 0..6 {
-        let (it, ok) =
-            gauss_newton(array, stat, dynamic, settings, &weights, &active, &constraints, &mut state, settings.max_iterations);
+    for _round in 0..4 {
+        let (it, ok) = gauss_newton(
+            array,
+            stat,
+            dynamic,
+            settings,
+            &weights,
+            &active,
+            &constraints,
+            &mut state,
+            settings.max_iterations,
+        );
         iterations += it;
         converged = ok;
         // Variance components.
@@ -214,7 +227,8 @@ pub fn fit(
         let new_factor = (chi2 / dof).max(1.0);
         let mut changed = (new_factor / static_factor - 1.0).abs() > 0.01;
         static_factor = new_factor;
-        weights.static_w = DMatrix::from_fn(poses, n, |p, j| stat.counts[p] as f64 / (stat.sigma[j].powi(2) * static_factor));
+        weights.static_w =
+            DMatrix::from_fn(poses, n, |p, j| stat.counts[p] as f64 / (stat.sigma[j].powi(2) * static_factor));
         if let Some(d) = dynamic.filter(|_| with_dynamic) {
             let (rms, _) = dynamic_residuals(array, d, &state);
             let local = if reference_rate { 6.0 } else { 9.0 };
@@ -304,7 +318,8 @@ fn initial_motion(array: &Array, d: &DynamicData, w: &Weights, state: &mut State
 /// then rate signs by continuity.
 pub fn motion_from_scratch(array: &Array, d: &DynamicData, dynamic_w: &[f64], params: &SensorSet) -> Vec<SampleMotion> {
     let w = Weights { static_w: DMatrix::zeros(0, 0), dynamic_w: dynamic_w.to_vec() };
-    let mut state = State { params: params.clone(), up: Vec::new(), motion: vec![SampleMotion::default(); d.samples()] };
+    let mut state =
+        State { params: params.clone(), up: Vec::new(), motion: vec![SampleMotion::default(); d.samples()] };
     let state = &mut state;
     let sens = sensors(array, &state.params);
     let n = array.len();
@@ -339,7 +354,13 @@ pub fn motion_from_scratch(array: &Array, d: &DynamicData, dynamic_w: &[f64], pa
 }
 
 /// Re-solves every sample's motion from its current value (parallel, independent per sample).
-fn refine_motion(array: &Array, d: &DynamicData, w: &Weights, params: &SensorSet, motion_in: &[SampleMotion]) -> Vec<SampleMotion> {
+fn refine_motion(
+    array: &Array,
+    d: &DynamicData,
+    w: &Weights,
+    params: &SensorSet,
+    motion_in: &[SampleMotion],
+) -> Vec<SampleMotion> {
     let sens = sensors(array, params);
     let n = array.len();
     let fixed = d.reference_rate_rad_s.is_some();
@@ -384,10 +405,15 @@ fn gauss_newton(
             };
             let trial = apply_step(array, stat, dynamic, w, state, &step);
             let trial_cost = total_cost(array, stat, dynamic, settings, w, &trial);
+            if std::env::var("GFCAL_DEBUG").is_ok() {
+                eprintln!("it {it} lambda {lambda:.1e} cost {cost:.6e} trial {trial_cost:.6e}");
+            }
             if trial_cost <= cost {
                 let decrease = cost - trial_cost;
                 *state = trial;
-                let done = decrease <= 1e-10 * cost.max(1e-300);
+                // The cost is a chi^2 (weights are inverse variances): a decrease below 0.01, or a
+                // millionth of the cost when the model leaves a large misfit, is no progress.
+                let done = decrease <= 0.01_f64.max(1e-6 * cost);
                 cost = trial_cost;
                 lambda = (lambda * 0.1).max(1e-12);
                 accepted = true;
@@ -494,7 +520,8 @@ fn normal_equations(
             let r = stat.means[(p, j)] - s.output(&q);
             let d4 = s.d_intrinsic(&q);
             let dpose = [s.k * settings.gravity_m_s2 * s.axis.dot(&e1), s.k * settings.gravity_m_s2 * s.axis.dot(&e2)];
-            let idx: [usize; 6] = [PER_ACCEL * j, PER_ACCEL * j + 1, PER_ACCEL * j + 2, PER_ACCEL * j + 3, na + 2 * p, na + 2 * p + 1];
+            let idx: [usize; 6] =
+                [PER_ACCEL * j, PER_ACCEL * j + 1, PER_ACCEL * j + 2, PER_ACCEL * j + 3, na + 2 * p, na + 2 * p + 1];
             let val = [d4[0], d4[1], d4[2], d4[3], dpose[0], dpose[1]];
             let wt = w.static_w[(p, j)];
             for a in 0..6 {
@@ -640,7 +667,11 @@ fn kkt_step(
 }
 
 /// Covariance in the gauge: the top-left block of the inverse KKT matrix.
-fn constrained_inverse(h: &DMatrix<f64>, constraints: &DMatrix<f64>, active: &[bool]) -> Result<DMatrix<f64>, FitError> {
+fn constrained_inverse(
+    h: &DMatrix<f64>,
+    constraints: &DMatrix<f64>,
+    active: &[bool],
+) -> Result<DMatrix<f64>, FitError> {
     let dim = h.nrows();
     let nc = constraints.nrows();
     let mut k = DMatrix::zeros(dim + nc, dim + nc);
@@ -674,10 +705,21 @@ fn count_null(h: &DMatrix<f64>, active: &[bool]) -> usize {
     let s = DMatrix::from_fn(m, m, |a, b| h[(idx[a], idx[b])] / (scale[a] * scale[b]));
     let eig = s.symmetric_eigenvalues();
     let max = eig.iter().cloned().fold(0.0, f64::max);
+    if std::env::var("GFCAL_DEBUG").is_ok() {
+        let mut v: Vec<f64> = eig.iter().map(|e| e / max).collect();
+        v.sort_by(f64::total_cmp);
+        eprintln!("smallest scaled eigenvalues {:?}", &v[..10.min(v.len())]);
+    }
     eig.iter().filter(|&&e| e < 1e-9 * max).count()
 }
 
-fn static_chi2(array: &Array, stat: &StaticData, state: &State, settings: &FitSettings, counts: &[usize]) -> (f64, f64) {
+fn static_chi2(
+    array: &Array,
+    stat: &StaticData,
+    state: &State,
+    settings: &FitSettings,
+    counts: &[usize],
+) -> (f64, f64) {
     let sens = sensors(array, &state.params);
     let n = array.len();
     let mut chi2 = 0.0;
@@ -743,4 +785,42 @@ fn motion_sigmas(array: &Array, d: &DynamicData, w: &Weights, state: &State, fix
             }
         })
         .collect()
+}
+
+/// The Cramer-Rao bound in the gauge at a known state: the constrained inverse of the Fisher
+/// information for static means of `counts` samples and dynamic samples of `dynamic`, with white
+/// noise `sigma` per sample and accelerometer. Also returns the null directions before the gauge.
+#[allow(clippy::too_many_arguments)]
+pub fn cramer_rao(
+    array: &Array,
+    counts: &[usize],
+    sigma: &[f64],
+    up: &[Vector3<f64>],
+    dynamic: Option<&DynamicData>,
+    motion: &[SampleMotion],
+    params: &SensorSet,
+    gravity_m_s2: f64,
+) -> Result<(DMatrix<f64>, usize), FitError> {
+    let n = array.len();
+    let poses = up.len();
+    let with_dynamic = dynamic.is_some_and(|d| d.samples() > 0);
+    let reference_rate = dynamic.and_then(|d| d.reference_rate_rad_s.as_ref()).is_some();
+    let gauge = Gauge {
+        rotation: !(with_dynamic && reference_rate),
+        translation: with_dynamic,
+        scale: with_dynamic && !reference_rate,
+    };
+    let dim = PER_ACCEL * n + 2 * poses;
+    let active: Vec<bool> = (0..dim).map(|i| with_dynamic || i >= PER_ACCEL * n || i % PER_ACCEL < 4).collect();
+    let stat = StaticData { means: DMatrix::zeros(poses, n), counts: counts.to_vec(), sigma: sigma.to_vec() };
+    let weights = Weights {
+        static_w: DMatrix::from_fn(poses, n, |p, j| counts[p] as f64 / sigma[j].powi(2)),
+        dynamic_w: sigma.iter().map(|s| 1.0 / (s * s)).collect(),
+    };
+    let state = State { params: params.clone(), up: up.to_vec(), motion: motion.to_vec() };
+    let settings = FitSettings { gravity_m_s2, ..FitSettings::default() };
+    let normal = normal_equations(array, &stat, dynamic.filter(|_| with_dynamic), &settings, &weights, &state, &active);
+    let null = count_null(&normal.h, &active);
+    let constraints = gauge.constraints(array, with_dynamic, 2 * poses);
+    Ok((constrained_inverse(&normal.h, &constraints, &active)?, null))
 }

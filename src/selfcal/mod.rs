@@ -19,3 +19,4 @@ pub mod output;
 pub mod predict;
 pub mod recording;
 pub mod segment;
+pub mod simulate;

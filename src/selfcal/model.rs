@@ -182,7 +182,9 @@ impl Gauge {
     pub fn describe(&self) -> Vec<&'static str> {
         let mut v = Vec::new();
         if self.rotation {
-            v.push("rotation: the array frame is the mean frame of the accelerometers (tilt rotation vectors sum to zero)");
+            v.push(
+                "rotation: the array frame is the mean frame of the accelerometers (tilt rotation vectors sum to zero)",
+            );
         }
         if self.translation {
             v.push("translation: the origin is the centroid of the sensing points (location errors sum to zero)");

@@ -142,8 +142,7 @@ pub fn linear_guess(sensors: &[Sensor], data: &SampleData) -> SampleMotion {
 pub fn orient_run(t_s: &[f64], motion: &mut [SampleMotion]) {
     for i in 1..motion.len() {
         let dt = t_s[i] - t_s[i - 1];
-        let predicted =
-            motion[i - 1].omega_rad_s + (motion[i - 1].alpha_rad_s2 + motion[i].alpha_rad_s2) * (0.5 * dt);
+        let predicted = motion[i - 1].omega_rad_s + (motion[i - 1].alpha_rad_s2 + motion[i].alpha_rad_s2) * (0.5 * dt);
         let w = motion[i].omega_rad_s;
         if (w - predicted).norm_squared() > (-w - predicted).norm_squared() {
             motion[i].omega_rad_s = -w;

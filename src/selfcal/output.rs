@@ -48,9 +48,7 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
         .zip(&fit.up)
         .map(|(iv, u)| json!({"start_s": t[iv.start], "end_s": t[iv.end - 1], "up_x": u.x, "up_y": u.y, "up_z": u.z}))
         .collect();
-    let interval = |iv: &super::segment::Interval| {
-        json!({"start_s": t[iv.start], "end_s": t[iv.end - 1], "length_s": t[iv.end - 1] - t[iv.start], "samples": iv.len()})
-    };
+    let interval = |iv: &super::segment::Interval| json!({"start_s": t[iv.start], "end_s": t[iv.end - 1], "length_s": t[iv.end - 1] - t[iv.start], "samples": iv.len()});
     let dyn_rms = {
         let v: Vec<f64> = fit.dynamic_residual_rms_m_s2.iter().copied().filter(|v| v.is_finite()).collect();
         if v.is_empty() { f64::NAN } else { (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt() }

@@ -47,7 +47,8 @@ pub fn predict(
     for p in 0..stat.means.nrows() {
         // Pose direction only: Gauss-Newton on two tangent angles.
         let normal: nalgebra::Matrix3<f64> = sens.iter().map(|s| s.axis * s.axis.transpose()).sum();
-        let b: Vector3<f64> = sens.iter().enumerate().map(|(j, s)| s.axis * (stat.means[(p, j)] / s.k - s.b_m_s2)).sum();
+        let b: Vector3<f64> =
+            sens.iter().enumerate().map(|(j, s)| s.axis * (stat.means[(p, j)] / s.k - s.b_m_s2)).sum();
         let mut u = normal.try_inverse().map(|m| m * b).unwrap_or_else(Vector3::z).normalize();
         for _ in 0..20 {
             let (e1, e2) = tilt_basis(&u);
@@ -56,7 +57,8 @@ pub fn predict(
             for (j, s) in sens.iter().enumerate() {
                 let w = stat.counts[p] as f64 / stat.sigma[j].powi(2);
                 let r = stat.means[(p, j)] - s.output(&(u * gravity_m_s2));
-                let d = nalgebra::Vector2::new(s.k * gravity_m_s2 * s.axis.dot(&e1), s.k * gravity_m_s2 * s.axis.dot(&e2));
+                let d =
+                    nalgebra::Vector2::new(s.k * gravity_m_s2 * s.axis.dot(&e1), s.k * gravity_m_s2 * s.axis.dot(&e2));
                 h += d * d.transpose() * w;
                 g += d * (w * r);
             }

@@ -134,7 +134,10 @@ fn from_steps(rec: &Recording, step: &[i64]) -> Result<Segmentation, RecordingEr
                     path: rec.path.clone(),
                     row: i + 1,
                     column: "step".into(),
-                    problem: format!("step {} appears again after other steps (a step's rows must be contiguous)", step[i]),
+                    problem: format!(
+                        "step {} appears again after other steps (a step's rows must be contiguous)",
+                        step[i]
+                    ),
                 });
             }
             static_intervals.push(Interval { start: i, end: k });

@@ -11,3 +11,4 @@ mod navigation;
 mod noise;
 mod reference;
 mod report;
+mod selfcal;
