@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# Regenerates results/mimu4444/: calibrates each of the six recordings (the other five held out),
+# writes recording_K.json and recording_K.html, then tables.md from them (summarize.py).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+data=../shared/data/mimu4444
+for k in 1 2 3 4 5 6; do
+  others=()
+  for m in 1 2 3 4 5 6; do [ "$m" = "$k" ] || others+=("$data/recording_$m.parquet"); done
+  cargo run --release --quiet -- calibrate "$data/recording_$k.parquet" --array configs/arrays/mimu4444_corners.toml \
+    --json "results/mimu4444/recording_$k.json" --report "results/mimu4444/recording_$k.html" --held-out "${others[@]}" \
+    > "results/mimu4444/recording_$k.txt"
+done
+python3 results/mimu4444/summarize.py results/mimu4444 > results/mimu4444/tables.md
