@@ -2,6 +2,8 @@
 //! sigma, the fit's residuals against the noise, the gyroscope-free rate against the reference
 //! gyroscopes, and held-out prediction.
 
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord, clippy::useless_vec)]
+
 use std::path::PathBuf;
 
 use super::display_unit;

@@ -3,6 +3,8 @@
 //! Segments the recording, forms the static means and the dynamic samples, fits
 //! (`selfcal::fit`), and checks the gyroscope-free angular rate against the reference gyroscopes.
 
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord, clippy::useless_vec)]
+
 use nalgebra::{DMatrix, Vector3};
 
 use super::fit::{DynamicData, Fit, FitError, FitSettings, StaticData, fit};

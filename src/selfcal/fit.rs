@@ -16,6 +16,8 @@
 //!   bound in the stated gauge. Before it is fixed, the Fisher information's null directions are
 //!   counted: they must be exactly the gauge's.
 
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord, clippy::useless_vec)]
+
 use nalgebra::{DMatrix, DVector, SMatrix, Vector3};
 use rayon::prelude::*;
 

@@ -4,6 +4,8 @@
 //! `motion::RigidMotion`), not from `selfcal::model`, so a fit of these recordings is checked
 //! against an independent generator.
 
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord, clippy::useless_vec)]
+
 use nalgebra::{DMatrix, Quaternion, UnitQuaternion, Vector3};
 use rand::{Rng, RngExt};
 use rand_distr::StandardNormal;

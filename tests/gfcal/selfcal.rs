@@ -1,6 +1,8 @@
 //! Free (hand-held) calibration of a real array: simulated recordings of the MIMU4444 protocol
 //! against the Cramer-Rao bound, and the six real recordings in ../shared/data/mimu4444/.
 
+#![allow(clippy::needless_range_loop)]
+
 use std::path::{Path, PathBuf};
 
 use gfcal::config::array::load_recording_array;
