@@ -10,7 +10,7 @@ use crate::InputError;
 use gfcal::config::array::load_recording_array;
 use gfcal::selfcal::calibrate::{CalibrateError, CalibrateSettings, Calibration, calibrate as run_calibration};
 use gfcal::selfcal::fit::{FitError, FitSettings};
-use gfcal::selfcal::model::{NAMES, PER_ACCEL};
+use gfcal::selfcal::model::PER_ACCEL;
 use gfcal::selfcal::predict::{HeldOut, predict};
 use gfcal::selfcal::recording::{Recording, RecordingError};
 use gfcal::selfcal::segment::DetectorSettings;
@@ -186,7 +186,6 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
         }
         let _ = writeln!(s, "{line}");
     }
-    let _ = NAMES;
     if let Some(g) = &cal.gyro_check {
         let _ = writeln!(
             s,

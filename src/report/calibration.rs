@@ -83,7 +83,6 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
         panels.push(p);
         // Residuals against the rate magnitude.
         let sens = sensors(&array.array, &fit.params);
-        let n = rec.accelerometers();
         let mut bins = vec![(0.0, 0usize); 12];
         for (k, &i) in cal.dynamic_index.iter().enumerate() {
             let m = &fit.motion[k];
@@ -95,7 +94,6 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
                     bins[b].1 += 1;
                 }
             }
-            let _ = n;
         }
         let pts: Vec<(f64, f64)> = bins
             .iter()

@@ -405,7 +405,7 @@ fn gauss_newton(
                 lambda *= 10.0;
                 continue;
             };
-            let trial = apply_step(array, stat, dynamic, w, state, &step);
+            let trial = apply_step(array, dynamic, w, state, &step);
             let trial_cost = total_cost(array, stat, dynamic, settings, w, &trial);
             if std::env::var("GFCAL_DEBUG").is_ok() {
                 eprintln!("it {it} lambda {lambda:.1e} cost {cost:.6e} trial {trial_cost:.6e}");
@@ -434,14 +434,7 @@ fn gauss_newton(
     (max_iterations, false)
 }
 
-fn apply_step(
-    array: &Array,
-    stat: &StaticData,
-    dynamic: Option<&DynamicData>,
-    w: &Weights,
-    state: &State,
-    step: &DVector<f64>,
-) -> State {
+fn apply_step(array: &Array, dynamic: Option<&DynamicData>, w: &Weights, state: &State, step: &DVector<f64>) -> State {
     let n = array.len();
     let mut params = state.params.clone();
     for j in 0..n {
@@ -458,7 +451,6 @@ fn apply_step(
             (u + e1 * step[PER_ACCEL * n + 2 * p] + e2 * step[PER_ACCEL * n + 2 * p + 1]).normalize()
         })
         .collect();
-    let _ = stat;
     let motion = match dynamic {
         Some(d) => refine_motion(array, d, w, &params, &state.motion),
         None => state.motion.clone(),
