@@ -609,15 +609,41 @@ fn accumulate_sample(
             mt.row_mut(k).fill(0.0);
         }
     }
-    let Some(chol) = hll.cholesky() else { return };
-    // B^T = L^-1 M^T; H -= B B^T; g -= B L^-1 g_l.
-    let l = chol.l();
-    let Some(linv) = l.try_inverse() else { return };
-    let linv = nalgebra::DMatrix::from_column_slice(9, 9, linv.as_slice());
-    let bt = &linv * &*mt;
-    let y = &linv * DVector::from_column_slice(gl.as_slice());
-    h.gemm_tr(-1.0, &bt, &bt, 1.0);
-    g.gemv_tr(-1.0, &bt, &y, 1.0);
+    // H -= M^T Hll^+ M; g -= M^T Hll^+ g_l (a pseudo-inverse where the sample does not fix its
+    // whole motion: at zero rate the centripetal terms, and with them the rate, vanish).
+    let inv = motion_pseudo_inverse(&hll);
+    let inv = DMatrix::from_column_slice(9, 9, inv.as_slice());
+    let im = &inv * &*mt;
+    let y = &inv * DVector::from_column_slice(gl.as_slice());
+    h.gemm_tr(-1.0, &*mt, &im, 1.0);
+    g.gemv_tr(-1.0, &*mt, &y, 1.0);
+}
+
+/// Inverse of one sample's motion information, or its pseudo-inverse when some motion direction
+/// is not observed (an exactly zero column, or an eigenvalue below `1e-12` of the largest after
+/// scaling by the diagonal).
+fn motion_pseudo_inverse(hll: &SMatrix<f64, 9, 9>) -> SMatrix<f64, 9, 9> {
+    let d = hll.diagonal().map(|v| if v > 0.0 { 1.0 / v.sqrt() } else { 0.0 });
+    let dm = SMatrix::<f64, 9, 9>::from_diagonal(&d);
+    let scaled = dm * hll * dm;
+    let full = d.iter().all(|&v| v > 0.0);
+    if full && let Some(chol) = scaled.cholesky() {
+        let l = chol.l();
+        let diag_min = l.diagonal().iter().fold(f64::INFINITY, |a, &b| a.min(b * b));
+        if diag_min > 1e-12 {
+            return dm * chol.inverse() * dm;
+        }
+    }
+    let eig = scaled.symmetric_eigen();
+    let max = eig.eigenvalues.iter().fold(0.0_f64, |a, &b| a.max(b));
+    let mut inv = SMatrix::<f64, 9, 9>::zeros();
+    for (k, &lam) in eig.eigenvalues.iter().enumerate() {
+        if lam > 1e-12 * max {
+            let v = eig.eigenvectors.column(k);
+            inv += v * v.transpose() / lam;
+        }
+    }
+    dm * inv * dm
 }
 
 type SVector9 = nalgebra::SVector<f64, 9>;

@@ -81,13 +81,16 @@ fn simulated_recording_finds_every_pose_and_the_gauge_exactly() {
     assert_eq!(cal.segmentation.dynamic_intervals.len(), 1);
     // Gyroscope-free: rotation 3 + translation 3 + scale 1.
     assert_eq!(cal.fit.null_directions, 7);
-    // Open defect: the Fisher information at the simulator's true state shows 5 exact null
-    // directions where the fit's shows 7 (results/mimu4444/README.md); not asserted until found.
+    // The same count in the Fisher information at the simulator's true state (where the first
+    // dynamic samples have exactly zero rate, so their rate is unobserved).
     let (_, null) = crb(&array, &sim, &cal, &t, false);
-    eprintln!("null directions at the truth: {null}");
-    // With the gyroscopes' rate the gauge should be translation only (3); on this simulated
-    // recording the Fisher information shows 5 exact null directions, an open defect reported in
-    // results/mimu4444/README.md, so the count is not asserted here.
+    assert_eq!(null, 7, "null directions at the truth");
+    // With the gyroscopes' rate the gyroscope axes fix rotation and size: translation only (3).
+    let gyro = CalibrateSettings { use_gyro: true, ..CalibrateSettings::default() };
+    let cal_g = calibrate(&sim.recording, &array, &gyro).expect("calibrates with the gyroscopes");
+    assert_eq!(cal_g.fit.null_directions, 3);
+    let (_, null_g) = crb(&array, &sim, &cal_g, &t, true);
+    assert_eq!(null_g, 3, "null directions at the truth with the gyroscopes' rate");
     // Static poses alone: rotation 3 (locations are not in the problem).
     let static_only = CalibrateSettings {
         detector: DetectorSettings { min_dynamic_s: 1e9, ..DetectorSettings::default() },
