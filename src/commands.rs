@@ -9,7 +9,8 @@ use nalgebra::DVector;
 use crate::InputError;
 use gfcal::calib::Layout;
 use gfcal::calib::design::{candidate_pool, greedy};
-use gfcal::calib::fisher::{Identifiability, analyse, fisher_information, structurally_unidentifiable};
+use gfcal::calib::fisher::{Identifiability, analyse, structurally_unidentifiable};
+use gfcal::calib::pose::{PoseError, marginal_fisher};
 use gfcal::calib::reproduce::{PaperRun, reproduce};
 use gfcal::calib::schedule::{Schedule, hung_lee_2006_augmented};
 use gfcal::config::calibration::CalibrationConfig;
@@ -48,6 +49,19 @@ fn describe_noise(l: &Loaded) -> String {
         l.cfg.noise.white.density_m_s2_per_sqrt_hz() / M_S2_PER_UG,
         l.sigma_m_s2 / M_S2_PER_MG
     )
+}
+
+fn describe_pose(pose: &PoseError) -> String {
+    let one = |sigma_rad: f64| {
+        if sigma_rad == 0.0 {
+            "exact (perfect fixture)".to_string()
+        } else if sigma_rad.is_infinite() {
+            "free (placed by hand)".to_string()
+        } else {
+            format!("tilt sigma {:.1} arcsec", sigma_rad / gfcal::units::RAD_PER_ARCSEC)
+        }
+    };
+    format!("pose error: static poses {}, spin axes {}", one(pose.static_sigma_rad), one(pose.spin_sigma_rad))
 }
 
 fn sigma_table(layout: &Layout, before: &Identifiability, after: Option<&Identifiability>) -> String {
@@ -102,7 +116,7 @@ pub fn identify(path: &Path) -> anyhow::Result<()> {
     let l = load(path)?;
     let (cfg, layout) = (&l.cfg, &l.layout);
     let g = cfg.calibration.gravity_m_s2;
-    let fim = fisher_information(layout, &l.x, &cfg.schedule, g, l.sigma_m_s2);
+    let fim = marginal_fisher(layout, &l.x, &cfg.schedule, g, l.sigma_m_s2, &cfg.calibration.pose);
     let id = analyse(layout, &l.x, &fim, &cfg.targets);
     println!(
         "schedule `{}` ({} steps), {} form, evaluated at the config's error parameters",
@@ -110,7 +124,11 @@ pub fn identify(path: &Path) -> anyhow::Result<()> {
         cfg.schedule.len(),
         cfg.calibration.form.name()
     );
-    println!("{}\n", describe_noise(&l));
+    println!("{}", describe_noise(&l));
+    if !cfg.calibration.pose.is_perfect() {
+        println!("{}", describe_pose(&cfg.calibration.pose));
+    }
+    println!();
     print!("{}", sigma_table(layout, &id, None));
     let structural = structurally_unidentifiable(layout, &l.x, &cfg.schedule, g);
     println!("\nUnidentifiable whatever the errors (structural):");
@@ -144,6 +162,7 @@ pub fn design(path: &Path) -> anyhow::Result<()> {
         l.sigma_m_s2,
         cfg.calibration.gravity_m_s2,
         cfg.design.max_added_steps,
+        &cfg.calibration.pose,
     )
     .map_err(|e| InputError::Other(format!("{}: key `schedule`: {e}", path.display())))?;
     println!(
@@ -152,7 +171,11 @@ pub fn design(path: &Path) -> anyhow::Result<()> {
         cfg.schedule.len(),
         pool.len()
     );
-    println!("{}\n", describe_noise(&l));
+    println!("{}", describe_noise(&l));
+    if !cfg.calibration.pose.is_perfect() {
+        println!("{}", describe_pose(&cfg.calibration.pose));
+    }
+    println!();
     println!("Steps added ({}):", result.added.len());
     for (i, s) in result.added.iter().enumerate() {
         println!("  {:>2}. {}", i + 1, s.name);

@@ -8,5 +8,7 @@ pub const M_S2_PER_MG: f64 = STANDARD_GRAVITY_M_S2 * 1e-3;
 pub const M_S2_PER_UG: f64 = STANDARD_GRAVITY_M_S2 * 1e-6;
 /// One millimetre in metres.
 pub const M_PER_MM: f64 = 1e-3;
+/// One arc second in radians.
+pub const RAD_PER_ARCSEC: f64 = std::f64::consts::PI / (180.0 * 3600.0);
 /// One degree in radians.
 pub const RAD_PER_DEG: f64 = std::f64::consts::PI / 180.0;

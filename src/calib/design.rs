@@ -9,8 +9,9 @@
 
 use nalgebra::{DMatrix, DVector, Vector3};
 
-use super::fisher::{Identifiability, Targets, analyse, fisher_information};
+use super::fisher::{Identifiability, Targets, analyse};
 use super::params::Layout;
+use super::pose::{PoseError, marginal_fisher};
 use super::schedule::{Schedule, ScheduleError, Step};
 
 /// The outcome of a design.
@@ -98,17 +99,19 @@ pub fn greedy(
     sigma_m_s2: f64,
     g_m_s2: f64,
     max_added: usize,
+    pose: &PoseError,
 ) -> Result<DesignResult, ScheduleError> {
     let target = targets.si(layout, x);
     let p = layout.len();
     let scale = |f: &DMatrix<f64>| DMatrix::from_fn(p, p, |a, b| f[(a, b)] * target[a] * target[b]);
-    let base_fim = fisher_information(layout, x, base, g_m_s2, sigma_m_s2);
+    // Tilts of different steps do not mix, so the marginal information is a sum over steps.
+    let base_fim = marginal_fisher(layout, x, base, g_m_s2, sigma_m_s2, pose);
     let before = analyse(layout, x, &base_fim, targets);
     let candidates: Vec<DMatrix<f64>> = pool
         .iter()
         .map(|s| {
             Schedule::new("candidate", vec![s.clone()])
-                .map(|one| scale(&fisher_information(layout, x, &one, g_m_s2, sigma_m_s2)))
+                .map(|one| scale(&marginal_fisher(layout, x, &one, g_m_s2, sigma_m_s2, pose)))
         })
         .collect::<Result<_, _>>()?;
     let mut current = scale(&base_fim);

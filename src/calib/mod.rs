@@ -15,13 +15,16 @@ pub mod design;
 pub mod estimate;
 pub mod fisher;
 pub mod joint;
+pub mod joint_pose;
 pub mod measure;
 pub mod paper;
 pub mod params;
+pub mod pose;
 pub mod reproduce;
 pub mod schedule;
 
 pub use estimate::{Estimate, FitStatus};
 pub use measure::{Measurements, StepStats};
 pub use params::{Form, Layout, ParamKind};
+pub use pose::PoseError;
 pub use schedule::{Schedule, ScheduleError, Step, StepKind};

@@ -7,6 +7,9 @@
 //! estimator = "joint"       # or "paper"
 //! start = "linear"          # joint only: or "nominal"
 //! gravity_m_s2 = 9.80665
+//! pose_tilt_sigma_arcsec = 36.0       # fixture error of every commanded pose: 0 perfect (default),
+//!                                     # inf a pose placed by hand (free)
+//! spin_axis_tilt_sigma_arcsec = 36.0  # of every spin axis (default: pose_tilt_sigma_arcsec)
 //!
 //! [targets]                 # Cramer-Rao sigmas a schedule should reach
 //! scale_factor_ppm = 100.0
@@ -32,9 +35,10 @@ use crate::array::Array;
 use crate::calib::Form;
 use crate::calib::fisher::Targets;
 use crate::calib::joint::Start;
+use crate::calib::pose::PoseError;
 use crate::calib::schedule::Schedule;
 use crate::sensor::noise::NoiseSpec;
-use crate::units::STANDARD_GRAVITY_M_S2;
+use crate::units::{RAD_PER_ARCSEC, STANDARD_GRAVITY_M_S2};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -70,6 +74,8 @@ pub struct CalibrationSection {
     #[serde(default)]
     pub start: StartEntry,
     pub gravity_m_s2: Option<f64>,
+    pub pose_tilt_sigma_arcsec: Option<f64>,
+    pub spin_axis_tilt_sigma_arcsec: Option<f64>,
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -113,6 +119,8 @@ pub struct CalibrationSettings {
     pub estimator: Estimator,
     pub start: Start,
     pub gravity_m_s2: f64,
+    /// Tilt prior of every commanded pose and spin axis (`calib::pose`).
+    pub pose: PoseError,
 }
 
 /// Design settings.
@@ -149,8 +157,25 @@ impl CalibrationSection {
                 StartEntry::Linear => Start::Linear,
             },
             gravity_m_s2: positive("calibration.gravity_m_s2", self.gravity_m_s2.unwrap_or(STANDARD_GRAVITY_M_S2))?,
+            pose: {
+                let pose =
+                    tilt_sigma("calibration.pose_tilt_sigma_arcsec", self.pose_tilt_sigma_arcsec.unwrap_or(0.0))?;
+                let spin = match self.spin_axis_tilt_sigma_arcsec {
+                    Some(v) => tilt_sigma("calibration.spin_axis_tilt_sigma_arcsec", v)?,
+                    None => pose,
+                };
+                PoseError { static_sigma_rad: pose, spin_sigma_rad: spin }
+            },
         })
     }
+}
+
+/// A tilt prior sigma in arc seconds, as radians: 0 or more, `inf` for a free tilt.
+fn tilt_sigma(key: &str, arcsec: f64) -> Result<f64, Bad> {
+    if arcsec.is_nan() || arcsec < 0.0 {
+        return Err(Bad::new(key, format!("must be 0 (perfect fixture), positive, or inf (free), got {arcsec}")));
+    }
+    Ok(arcsec * RAD_PER_ARCSEC)
 }
 
 impl TargetsSection {

@@ -606,6 +606,17 @@ fn build_cell(f: &McFile, path: &Path, index: usize, factors: Vec<(String, Facto
     if calibration.form == Form::Triad && array.triads().is_empty() {
         return Err(bad(Bad::new("calibration.form", "the triad form needs an array with triads; use \"tilt\"")));
     }
+    if calibration.pose.has_free() {
+        let key = if calibration.pose.static_sigma_rad.is_infinite() {
+            "calibration.pose_tilt_sigma_arcsec"
+        } else {
+            "calibration.spin_axis_tilt_sigma_arcsec"
+        };
+        return Err(bad(Bad::new(
+            key,
+            "a run draws every trial's fixture tilts from this sigma, so it must be finite (inf, a free pose, is for `gfcal identify` and `gfcal design`)",
+        )));
+    }
     let layout = Layout::new(&array, calibration.form).map_err(|e| bad(Bad::new("calibration.form", e.to_string())))?;
     let nav = &f.navigation;
     let step_s = positive("navigation.step_s", nav.step_s).map_err(bad)?;

@@ -1,14 +1,16 @@
 //! One Monte Carlo trial: draw a true error set, simulate the calibration, estimate, compute the
 //! Cramer-Rao sigmas, and navigate with each compensation.
 
-use nalgebra::{DMatrix, DVector, Vector3};
+use nalgebra::{DVector, Vector3};
+use rand::RngExt;
+use rand_distr::StandardNormal;
 
 use super::config::{Cell, Compensation};
 use crate::calib::estimate::CalibError;
-use crate::calib::fisher::fisher_information;
-use crate::calib::joint::{check_identifiable, estimate_unchecked};
+use crate::calib::joint::check_identifiable;
+use crate::calib::joint_pose::estimate_with_poses;
 use crate::calib::measure::simulate;
-use crate::calib::params::PER_ACCEL;
+use crate::calib::pose::{self, marginal_fisher, tilted_schedule};
 use crate::calib::{Estimate, paper};
 use crate::config::calibration::Estimator;
 use crate::nav::navigate;
@@ -19,6 +21,10 @@ use crate::sensor::{ArrayParams, Compensator, SimulatedArray};
 /// Salt of the navigation-noise streams: trial `i` navigates with `trial_rng(seed ^ NAV_SALT, i)`,
 /// the same realisation for every compensation.
 pub const NAV_SALT: u64 = 0x6e61_765f_6e6f_6973;
+/// Salt of the fixture-tilt streams: trial `i` draws its pose tilts from
+/// `trial_rng(seed ^ POSE_SALT, i)`, and only when the fixture is not perfect, so a perfect
+/// fixture leaves every other stream as it was.
+pub const POSE_SALT: u64 = 0x706f_7365_7469_6c74;
 
 /// The drift metrics recorded at each horizon, with their units.
 pub const DRIFT_METRICS: [(&str, &str); 4] =
@@ -64,24 +70,16 @@ impl Prepared {
     }
 }
 
-/// Cramer-Rao sigma of every parameter of `cell` at `x` (per-accelerometer blocks), SI.
+/// Cramer-Rao sigma of every parameter of `cell` at `x`, SI, with the fixture's pose tilts
+/// marginalised under their prior (`calib::pose`; per-accelerometer blocks with a perfect fixture).
 pub fn crb_sigma(cell: &Cell, x: &DVector<f64>, sigma_m_s2: f64) -> Vec<f64> {
     let p = cell.layout.len();
     if sigma_m_s2 <= 0.0 {
         return vec![0.0; p];
     }
-    let fim = fisher_information(&cell.layout, x, &cell.schedule, cell.calibration.gravity_m_s2, sigma_m_s2);
-    let mut out = vec![f64::INFINITY; p];
-    for j in 0..cell.array.len() {
-        let o = PER_ACCEL * j;
-        let block: DMatrix<f64> = fim.view((o, o), (PER_ACCEL, PER_ACCEL)).clone_owned();
-        if let Some(inv) = block.try_inverse() {
-            for a in 0..PER_ACCEL {
-                out[o + a] = inv[(a, a)].max(0.0).sqrt();
-            }
-        }
-    }
-    out
+    let pose = &cell.calibration.pose;
+    let fim = marginal_fisher(&cell.layout, x, &cell.schedule, cell.calibration.gravity_m_s2, sigma_m_s2, pose);
+    pose::crb_sigma(&fim, cell.array.len(), pose.is_perfect())
 }
 
 /// Runs trial `trial` of `cell` under master seed `seed`.
@@ -97,12 +95,31 @@ pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Tri
         None => cell.errors.sample(layout, &mut rng),
     };
     let truth = layout.unpack(&x_true);
-    let meas = simulate(&cell.array, &truth, &cell.schedule, &cell.noise, g, &mut rng);
+    let pose = &cell.calibration.pose;
+    let meas = if pose.is_perfect() {
+        simulate(&cell.array, &truth, &cell.schedule, &cell.noise, g, &mut rng)
+    } else {
+        // The fixture's tilts, from their own stream: each step tilted by N(0, sigma) per angle.
+        let mut pose_rng = trial_rng(seed ^ POSE_SALT, stream);
+        let tilts: Vec<[f64; 2]> = cell
+            .schedule
+            .steps()
+            .iter()
+            .map(|s| {
+                let sigma = pose.sigma_rad(s);
+                let mut draw = || sigma * pose_rng.sample::<f64, _>(StandardNormal);
+                [draw(), draw()]
+            })
+            .collect();
+        let delivered = tilted_schedule(&cell.schedule, &tilts);
+        simulate(&cell.array, &truth, &delivered, &cell.noise, g, &mut rng)
+    };
     let estimate: Result<Estimate, String> = match &prepared.refusal {
         Some(why) => Err(why.clone()),
         None => match cell.calibration.estimator {
             Estimator::Joint => {
-                estimate_unchecked(layout, &cell.schedule, &meas, &prepared.nominal, cell.calibration.start, g)
+                let (start, sigma) = (cell.calibration.start, prepared.white_sigma_m_s2);
+                estimate_with_poses(layout, &cell.schedule, &meas, &prepared.nominal, start, g, pose, sigma)
             }
             Estimator::Paper => paper::estimate(layout, &cell.schedule, &meas, g),
         }

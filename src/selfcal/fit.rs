@@ -253,7 +253,7 @@ pub fn fit(
     let null_directions = count_null(&normal.h, &active);
     let covariance = constrained_inverse(&normal.h, &constraints, &active)?;
     let omega_sigma_rad_s = match dynamic.filter(|_| with_dynamic) {
-        Some(d) => motion_sigmas(array, d, &weights, &state, reference_rate),
+        Some(d) => motion_sigmas(array, d, &weights, &state, reference_rate, &covariance),
         None => Vec::new(),
     };
     let (chi2, dof) = static_chi2(array, stat, &state, settings, stat.counts.as_slice());
@@ -534,9 +534,19 @@ fn normal_equations(
             .map(|c| {
                 let mut ha = DMatrix::zeros(na, na);
                 let mut ga = DVector::zeros(na);
-                let mut mt = DMatrix::zeros(9, na);
+                let mut scratch = SampleScratch::default();
                 for i in c * chunk..((c + 1) * chunk).min(d.samples()) {
-                    accumulate_sample(&sens, d, i, &state.motion[i], &w.dynamic_w, fixed, &mut ha, &mut ga, &mut mt);
+                    accumulate_sample(
+                        &sens,
+                        d,
+                        i,
+                        &state.motion[i],
+                        &w.dynamic_w,
+                        fixed,
+                        &mut ha,
+                        &mut ga,
+                        &mut scratch,
+                    );
                 }
                 (ha, ga)
             })
@@ -560,6 +570,12 @@ fn normal_equations(
 
 /// Adds one dynamic sample's contribution to the reduced normal equations of the accelerometer
 /// parameters.
+///
+/// The sample's Schur complement `M^T Hll^+ M` is rank 9 but dense over every accelerometer's
+/// parameters. Each output depends on its own accelerometer's parameters only, so column
+/// `(j, a)` of `M` is `w_j dg_j[a] dl_j`, and the update is `P_jk dg_j dg_k^T` for every pair of
+/// accelerometers with `P_jk = w_j w_k dl_j^T Hll^+ dl_k`: 7 x 7 blocks instead of a dense
+/// `7 N x 7 N` product.
 #[allow(clippy::too_many_arguments)]
 fn accumulate_sample(
     sens: &[Sensor],
@@ -570,12 +586,14 @@ fn accumulate_sample(
     fixed: bool,
     h: &mut DMatrix<f64>,
     g: &mut DVector<f64>,
-    mt: &mut DMatrix<f64>,
+    scratch: &mut SampleScratch,
 ) {
     let n = sens.len();
     let mut hll = SMatrix::<f64, 9, 9>::zeros();
     let mut gl = SVector9::zeros();
-    mt.fill(0.0);
+    scratch.wdl.clear();
+    scratch.dg.clear();
+    scratch.index.clear();
     for (j, s) in sens.iter().enumerate() {
         if !d.used[i * n + j] {
             continue;
@@ -583,7 +601,12 @@ fn accumulate_sample(
         let q = m.specific_force_m_s2(&s.position_m);
         let r = d.outputs[(i, j)] - s.output(&q);
         let wt = weights[j];
-        let dl = SVector9::from(s.d_motion(m));
+        let mut dl = SVector9::from(s.d_motion(m));
+        if fixed {
+            for k in 6..9 {
+                dl[k] = 0.0;
+            }
+        }
         let d4 = s.d_intrinsic(&q);
         let dloc = s.d_location(m);
         let dg = [d4[0], d4[1], d4[2], d4[3], dloc.x, dloc.y, dloc.z];
@@ -595,28 +618,50 @@ fn accumulate_sample(
             for b in 0..PER_ACCEL {
                 h[(base + a, base + b)] += wt * dg[a] * dg[b];
             }
-            for k in 0..9 {
-                mt[(k, base + a)] += wt * dl[k] * dg[a];
-            }
         }
+        scratch.wdl.push(dl * wt);
+        scratch.dg.push(dg);
+        scratch.index.push(j);
     }
     if fixed {
         for k in 6..9 {
-            hll.row_mut(k).fill(0.0);
-            hll.column_mut(k).fill(0.0);
             hll[(k, k)] = 1.0;
-            gl[k] = 0.0;
-            mt.row_mut(k).fill(0.0);
         }
     }
     // H -= M^T Hll^+ M; g -= M^T Hll^+ g_l (a pseudo-inverse where the sample does not fix its
     // whole motion: at zero rate the centripetal terms, and with them the rate, vanish).
     let inv = motion_pseudo_inverse(&hll);
-    let inv = DMatrix::from_column_slice(9, 9, inv.as_slice());
-    let im = &inv * &*mt;
-    let y = &inv * DVector::from_column_slice(gl.as_slice());
-    h.gemm_tr(-1.0, &*mt, &im, 1.0);
-    g.gemv_tr(-1.0, &*mt, &y, 1.0);
+    let y = inv * gl;
+    let m_used = scratch.index.len();
+    for a in 0..m_used {
+        let ya = inv * scratch.wdl[a];
+        let base_a = PER_ACCEL * scratch.index[a];
+        let ga = scratch.wdl[a].dot(&y);
+        let dga = scratch.dg[a];
+        for p in 0..PER_ACCEL {
+            g[base_a + p] -= dga[p] * ga;
+        }
+        for b in 0..m_used {
+            let pab = ya.dot(&scratch.wdl[b]);
+            let base_b = PER_ACCEL * scratch.index[b];
+            let dgb = scratch.dg[b];
+            for p in 0..PER_ACCEL {
+                let f = pab * dga[p];
+                for q in 0..PER_ACCEL {
+                    h[(base_a + p, base_b + q)] -= f * dgb[q];
+                }
+            }
+        }
+    }
+}
+
+/// Per-sample buffers of [`accumulate_sample`], reused across the samples of a chunk.
+#[derive(Default)]
+struct SampleScratch {
+    /// `w_j dl_j` of every used output.
+    wdl: Vec<SVector9>,
+    dg: Vec<[f64; PER_ACCEL]>,
+    index: Vec<usize>,
 }
 
 /// Inverse of one sample's motion information, or its pseudo-inverse when some motion direction
@@ -787,22 +832,58 @@ fn dynamic_residuals(array: &Array, d: &DynamicData, state: &State) -> (Vec<f64>
     ((0..n).map(|j| if c[j] > 0 { (s[j] / c[j] as f64).sqrt() } else { f64::NAN }).collect(), c)
 }
 
-fn motion_sigmas(array: &Array, d: &DynamicData, w: &Weights, state: &State, fixed: bool) -> Vec<Vector3<f64>> {
+/// Sigma of every sample's rate (per axis): the sample's own noise (`Hll^-1`) and the
+/// uncertainty of the accelerometer parameters carried into it,
+/// `Y + Y M Sigma_x M^T Y` with `Y = Hll^-1`, `M` the sample's motion-parameter information and
+/// `Sigma_x` the parameters' covariance in the gauge (the rate's estimate moves by `-Y M dx`).
+fn motion_sigmas(
+    array: &Array,
+    d: &DynamicData,
+    w: &Weights,
+    state: &State,
+    fixed: bool,
+    covariance: &DMatrix<f64>,
+) -> Vec<Vector3<f64>> {
     let sens = sensors(array, &state.params);
     let n = array.len();
+    let na = PER_ACCEL * n;
+    let cov = covariance.view((0, 0), (na, na)).map(|v| if v.is_finite() { v } else { 0.0 });
     (0..d.samples())
         .into_par_iter()
         .map(|i| {
             if fixed {
                 return Vector3::zeros();
             }
-            let row: Vec<f64> = d.outputs.row(i).iter().copied().collect();
-            let data = SampleData { outputs: &row, used: &d.used[i * n..(i + 1) * n], weights: &w.dynamic_w };
-            let (_, _, h) = motion::solve(&sens, &data, state.motion[i], false);
-            match h.try_inverse() {
-                Some(inv) => Vector3::new(inv[(6, 6)].sqrt(), inv[(7, 7)].sqrt(), inv[(8, 8)].sqrt()),
-                None => Vector3::repeat(f64::NAN),
+            let m = &state.motion[i];
+            let mut hll = SMatrix::<f64, 9, 9>::zeros();
+            let mut parts: Vec<(usize, SVector9, [f64; PER_ACCEL])> = Vec::with_capacity(n);
+            for (j, s) in sens.iter().enumerate() {
+                if !d.used[i * n + j] {
+                    continue;
+                }
+                let q = m.specific_force_m_s2(&s.position_m);
+                let dl = SVector9::from(s.d_motion(m));
+                let d4 = s.d_intrinsic(&q);
+                let dloc = s.d_location(m);
+                hll.ger(w.dynamic_w[j], &dl, &dl, 1.0);
+                parts.push((j, dl * w.dynamic_w[j], [d4[0], d4[1], d4[2], d4[3], dloc.x, dloc.y, dloc.z]));
             }
+            let y = motion_pseudo_inverse(&hll);
+            let mut out = Vector3::zeros();
+            for c in 0..3 {
+                let row = y.row(6 + c);
+                // Column (j, a) of (Y M)[6 + c, :] is (row . w_j dl_j) dg_j[a].
+                let mut u = DVector::zeros(na);
+                for (j, wdl, dg) in &parts {
+                    let f = row.dot(&wdl.transpose());
+                    for a in 0..PER_ACCEL {
+                        u[PER_ACCEL * j + a] = f * dg[a];
+                    }
+                }
+                let carried = (&cov * &u).dot(&u);
+                out[c] = (y[(6 + c, 6 + c)] + carried.max(0.0)).sqrt();
+            }
+            out
         })
         .collect()
 }

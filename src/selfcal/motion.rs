@@ -137,15 +137,31 @@ pub fn linear_guess(sensors: &[Sensor], data: &SampleData) -> SampleMotion {
 }
 
 /// Flips rate signs along a run of consecutive samples so that each rate is the one closer to
-/// the previous rate advanced by the mean angular acceleration, then flips the whole run if its
-/// rate increments disagree with the angular accelerations.
+/// its prediction, then flips the whole run if its rate increments disagree with the angular
+/// accelerations.
+///
+/// The prediction is the last *strong* rate (at least half the run's median rate) advanced by the
+/// angular accelerations since (trapezoid rule). The angular acceleration is seen linearly (the
+/// tangential terms) and is accurate at any rate, while the rate's direction is poorly resolved
+/// where the rate is low (the centripetal terms go as its square): chaining each sample to its
+/// neighbour let one noisy low-rate sample flip the rest of the run, bridging low-rate stretches
+/// with the accelerations does not.
 pub fn orient_run(t_s: &[f64], motion: &mut [SampleMotion]) {
+    if motion.is_empty() {
+        return;
+    }
+    let mut norms: Vec<f64> = motion.iter().map(|m| m.omega_rad_s.norm()).collect();
+    norms.sort_by(f64::total_cmp);
+    let strong = 0.5 * norms[norms.len() / 2];
+    let mut anchor = motion[0].omega_rad_s;
     for i in 1..motion.len() {
-        let dt = t_s[i] - t_s[i - 1];
-        let predicted = motion[i - 1].omega_rad_s + (motion[i - 1].alpha_rad_s2 + motion[i].alpha_rad_s2) * (0.5 * dt);
+        anchor += (motion[i - 1].alpha_rad_s2 + motion[i].alpha_rad_s2) * (0.5 * (t_s[i] - t_s[i - 1]));
         let w = motion[i].omega_rad_s;
-        if (w - predicted).norm_squared() > (-w - predicted).norm_squared() {
+        if (w - anchor).norm_squared() > (-w - anchor).norm_squared() {
             motion[i].omega_rad_s = -w;
+        }
+        if w.norm() >= strong {
+            anchor = motion[i].omega_rad_s;
         }
     }
     let mut agreement = 0.0;

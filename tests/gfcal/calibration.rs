@@ -219,7 +219,18 @@ fn augmented_schedule_meets_every_target_and_is_what_design_finds() {
     assert!(after.weak.is_empty());
     // The preset is the design's answer.
     let pool = gfcal::calib::design::candidate_pool(1.0, 100.0, &[TWO_PI / 2.0, TWO_PI, 2.0 * TWO_PI]);
-    let design = gfcal::calib::design::greedy(&layout, &x, &paper, &pool, &targets, sigma, G, 12).unwrap();
+    let design = gfcal::calib::design::greedy(
+        &layout,
+        &x,
+        &paper,
+        &pool,
+        &targets,
+        sigma,
+        G,
+        12,
+        &gfcal::calib::PoseError::PERFECT,
+    )
+    .unwrap();
     assert!(design.met());
     assert_eq!(design.added.len(), AUGMENTED_SPINS.len());
     for (step, (axis, multiple, up)) in design.added.iter().zip(AUGMENTED_SPINS) {

@@ -9,6 +9,7 @@ mod mechanization;
 mod misalignment;
 mod navigation;
 mod noise;
+mod pose;
 mod reference;
 mod report;
 mod selfcal;
