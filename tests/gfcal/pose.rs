@@ -208,3 +208,38 @@ fn estimator_with_tilt_nuisance_meets_its_cramer_rao_bound_under_fixture_error()
     eprintln!("ignoring the tilts: {worse} of {} parameters more than 15% above the bound", layout.len());
     assert!(worse > 0);
 }
+
+/// A tilt sigma that is negative or NaN is refused in any config; `inf` (a free pose) is refused
+/// in a run, which must draw the tilts, naming the key; a finite one runs.
+#[test]
+fn bad_tilt_sigmas_are_refused_naming_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let gfcal = |args: &[&std::ffi::OsStr]| Command::new(env!("CARGO_BIN_EXE_gfcal")).args(args).output().unwrap();
+    let design = std::fs::read_to_string(repo().join("configs/hung_lee_2006_design.toml")).unwrap();
+    for (value, key) in [("-5.0", "pose_tilt_sigma_arcsec"), ("nan", "pose_tilt_sigma_arcsec")] {
+        let path = dir.path().join("bad.toml");
+        std::fs::write(
+            &path,
+            design.replace("estimator = \"joint\"", &format!("estimator = \"joint\"\n{key} = {value}")),
+        )
+        .unwrap();
+        let out = gfcal(&["identify".as_ref(), path.as_os_str()]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{value}: {err}");
+        assert!(err.contains(&format!("calibration.{key}")) && err.contains("bad.toml"), "{err}");
+    }
+    let quick = std::fs::read_to_string(repo().join("configs/quickstart.toml")).unwrap();
+    let run = |extra: &str, name: &str| {
+        let path = dir.path().join(name);
+        let text = quick.replace("trials_per_cell = 20000", "trials_per_cell = 40");
+        std::fs::write(&path, text.replace("start = \"linear\"", &format!("start = \"linear\"\n{extra}"))).unwrap();
+        let out_dir = dir.path().join(format!("{name}.out"));
+        gfcal(&["run".as_ref(), path.as_os_str(), "--out".as_ref(), out_dir.as_os_str()])
+    };
+    let out = run("spin_axis_tilt_sigma_arcsec = inf", "free.toml");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("calibration.spin_axis_tilt_sigma_arcsec") && err.contains("finite"), "{err}");
+    let out = run("pose_tilt_sigma_arcsec = 36.0", "fixture.toml");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
