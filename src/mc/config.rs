@@ -197,7 +197,9 @@ pub struct McFile {
     pub errors: McErrorsSection,
     #[serde(default)]
     pub noise: NoiseSection,
-    pub schedule: ScheduleSection,
+    /// Either a schedule (a rate table) or a hand-held protocol (`mc::protocol`).
+    pub schedule: Option<ScheduleSection>,
+    pub protocol: Option<super::protocol::ProtocolSection>,
     #[serde(default)]
     pub calibration: CalibrationSection,
     pub trajectory: TrajectorySection,
@@ -239,6 +241,8 @@ pub struct Cell {
     pub navigation: McNavigation,
     /// The Saltelli design of the cell's trials, if the config asks for Sobol' indices.
     pub saltelli: Option<Saltelli>,
+    /// A hand-held protocol in place of the schedule (whose one step then only names it).
+    pub protocol: Option<super::protocol::ProtocolCell>,
 }
 
 /// A checked run config.
@@ -363,6 +367,10 @@ impl McConfig {
                                 .join(", ")
                         ),
                     )));
+                }
+                if cells.iter().any(|c| c.protocol.is_some()) {
+                    return Err(Bad::new("sensitivity.design", "a Saltelli design is not available with [protocol]")
+                        .in_file(path));
                 }
                 let per_cell = s.base_samples * (inputs.len() as u64 + 2);
                 for (i, c) in cells.iter_mut().enumerate() {
@@ -601,8 +609,40 @@ fn build_cell(f: &McFile, path: &Path, index: usize, factors: Vec<(String, Facto
         location_m: dist("location_mm", &e.location_mm, n, 3, M_PER_MM, |v| v.to_vec()).map_err(bad)?,
     };
     let (noise, _) = f.noise.resolve().map_err(bad)?;
-    let schedule = f.schedule.build(&array).map_err(bad)?;
     let calibration = f.calibration.resolve().map_err(bad)?;
+    let (schedule, protocol) = match (&f.schedule, &f.protocol) {
+        (Some(s), None) => (s.build(&array).map_err(bad)?, None),
+        (None, Some(p)) => {
+            if calibration.form != Form::Tilt {
+                return Err(bad(Bad::new(
+                    "calibration.form",
+                    "a hand-held protocol is calibrated in the tilt form: set form = \"tilt\"",
+                )));
+            }
+            let recording_array = match &f.array.file {
+                Some(file) => {
+                    crate::config::array::load_recording_array(&path.parent().unwrap_or(Path::new(".")).join(file))?
+                }
+                None => crate::selfcal::recording::RecordingArray::plain(array.clone(), path),
+            };
+            let sigma = noise.white.sigma_m_s2(p.sample_rate_hz);
+            let cell = p.resolve(recording_array, sigma, calibration.gravity_m_s2).map_err(bad)?;
+            let rate = cell.protocol.sample_rate_hz;
+            let step = crate::calib::schedule::Step::static_pose(
+                "protocol",
+                nalgebra::Vector3::z(),
+                cell.protocol.pose_s,
+                rate,
+            );
+            let named = Schedule::new("hand_held_protocol", vec![step])
+                .map_err(|e| bad(Bad::new("protocol", e.to_string())))?;
+            (named, Some(cell))
+        }
+        (Some(_), Some(_)) => return Err(bad(Bad::new("protocol", "give either [schedule] or [protocol], not both"))),
+        (None, None) => {
+            return Err(bad(Bad::new("schedule", "a run needs [schedule] (a rate table) or [protocol] (hand-held)")));
+        }
+    };
     if calibration.form == Form::Triad && array.triads().is_empty() {
         return Err(bad(Bad::new("calibration.form", "the triad form needs an array with triads; use \"tilt\"")));
     }
@@ -659,5 +699,6 @@ fn build_cell(f: &McFile, path: &Path, index: usize, factors: Vec<(String, Facto
         calibration,
         navigation: McNavigation { trajectory, step_s, horizons_s, compensations, noise: nav.noise.unwrap_or(false) },
         saltelli: None,
+        protocol,
     })
 }

@@ -11,6 +11,7 @@
 
 pub mod config;
 pub mod design;
+pub mod protocol;
 pub mod runner;
 pub mod sample;
 pub mod sensitivity;

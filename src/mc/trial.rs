@@ -62,9 +62,14 @@ pub struct Prepared {
 impl Prepared {
     pub fn new(cell: &Cell) -> Self {
         let nominal = ArrayParams::nominal_with_scale_factors(&cell.array, &cell.errors.nominal_scale_factor);
-        let refusal = check_identifiable(&cell.layout, &cell.schedule, &nominal, cell.calibration.gravity_m_s2)
-            .err()
-            .map(|e| e.to_string());
+        // A protocol's identifiability is that of each simulated recording (the gauge is fixed by
+        // the calibration), not of the placeholder schedule.
+        let refusal = match &cell.protocol {
+            Some(_) => None,
+            None => check_identifiable(&cell.layout, &cell.schedule, &nominal, cell.calibration.gravity_m_s2)
+                .err()
+                .map(|e| e.to_string()),
+        };
         let rate = cell.schedule.steps()[0].sample_rate_hz;
         Self { nominal, refusal, white_sigma_m_s2: cell.noise.white.sigma_m_s2(rate) }
     }
@@ -86,7 +91,6 @@ pub fn crb_sigma(cell: &Cell, x: &DVector<f64>, sigma_m_s2: f64) -> Vec<f64> {
 pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> TrialRecord {
     let layout = &cell.layout;
     let g = cell.calibration.gravity_m_s2;
-    let p = layout.len();
     // A Saltelli design shares noise between a block's A and AB rows (see `noise_stream`).
     let stream = cell.saltelli.as_ref().map(|s| s.noise_stream(trial)).unwrap_or(trial);
     let mut rng = trial_rng(seed, stream);
@@ -94,6 +98,12 @@ pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Tri
         Some(design) => design.sample(&cell.errors, layout, seed, trial),
         None => cell.errors.sample(layout, &mut rng),
     };
+    if let Some(protocol) = &cell.protocol {
+        let x_true = super::protocol::truth_in_gauge(protocol, &x_true);
+        let truth = layout.unpack(&x_true);
+        let (estimate, crb) = super::protocol::calibrate_one(protocol, layout, &x_true, &mut rng);
+        return record(cell, prepared, seed, stream, trial, &x_true, &truth, estimate, crb);
+    }
     let truth = layout.unpack(&x_true);
     let pose = &cell.calibration.pose;
     let meas = if pose.is_perfect() {
@@ -125,6 +135,25 @@ pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Tri
         }
         .map_err(|e: CalibError| e.to_string()),
     };
+    let crb = crb_sigma(cell, &x_true, prepared.white_sigma_m_s2);
+    record(cell, prepared, seed, stream, trial, &x_true, &truth, estimate, crb)
+}
+
+/// Navigates a trial's compensations and assembles its record.
+#[allow(clippy::too_many_arguments)]
+fn record(
+    cell: &Cell,
+    prepared: &Prepared,
+    seed: u64,
+    stream: u64,
+    trial: u64,
+    x_true: &DVector<f64>,
+    truth: &ArrayParams,
+    estimate: Result<Estimate, String>,
+    crb_sigma: Vec<f64>,
+) -> TrialRecord {
+    let p = cell.layout.len();
+    let g = cell.calibration.gravity_m_s2;
     let nan = vec![f64::NAN; p];
     let (estimated, estimated_sigma, status) = match &estimate {
         Ok(e) => (e.x.iter().copied().collect(), e.sigma().iter().copied().collect(), Some(e)),
@@ -136,12 +165,12 @@ pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Tri
     for comp in &nav.compensations {
         let params = match comp {
             Compensation::Nominal => Some(&prepared.nominal),
-            Compensation::True => Some(&truth),
+            Compensation::True => Some(truth),
             Compensation::Estimated => status.filter(|e| e.status.converged).map(|e| &e.params),
         };
         let samples = params.and_then(|params| {
             let mut compensator = Compensator::new(&cell.array, params).ok()?;
-            let mut source = SimulatedArray::new(&cell.array, &truth, &nav.trajectory, gravity_i);
+            let mut source = SimulatedArray::new(&cell.array, truth, &nav.trajectory, gravity_i);
             if nav.noise && !cell.noise.is_zero() {
                 let mut nav_rng = trial_rng(seed ^ NAV_SALT, stream);
                 let generator = NoiseGenerator::new(&cell.noise, cell.array.len(), 1.0 / nav.step_s, &mut nav_rng);
@@ -181,7 +210,7 @@ pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Tri
         drift,
         truth: x_true.iter().copied().collect(),
         estimated,
-        crb_sigma: crb_sigma(cell, &x_true, prepared.white_sigma_m_s2),
+        crb_sigma,
         estimated_sigma,
     }
 }

@@ -75,6 +75,21 @@ impl SensorSet {
             _ => self.location_error_m[j][p - 4],
         }
     }
+    /// The parameters as one vector, `PER_ACCEL` per accelerometer in [`NAMES`] order (the order
+    /// of `calib::Layout` in the tilt form).
+    pub fn to_vector(&self) -> Vec<f64> {
+        (0..self.len() * PER_ACCEL).map(|i| self.get(i / PER_ACCEL, i % PER_ACCEL)).collect()
+    }
+    /// The inverse of [`SensorSet::to_vector`].
+    pub fn from_vector(x: &[f64]) -> Self {
+        let n = x.len() / PER_ACCEL;
+        let mut s = Self::nominal(n);
+        for (i, v) in x.iter().enumerate().take(n * PER_ACCEL) {
+            let (j, p) = (i / PER_ACCEL, i % PER_ACCEL);
+            s.add(j, p, v - s.get(j, p));
+        }
+        s
+    }
     /// Adds `d` to parameter `p` of accelerometer `j`.
     pub fn add(&mut self, j: usize, p: usize, d: f64) {
         match p {

@@ -31,6 +31,21 @@ pub struct RecordingArray {
     pub path: PathBuf,
 }
 
+impl RecordingArray {
+    /// An array with the default columns `s1..sN`, no range (never clipped) and no gyroscopes;
+    /// `path` names it in messages.
+    pub fn plain(array: Array, path: &std::path::Path) -> Self {
+        let n = array.len();
+        Self {
+            array,
+            accelerometer_columns: (1..=n).map(|j| format!("s{j}")).collect(),
+            ranges_m_s2: vec![f64::INFINITY; n],
+            gyroscopes: Vec::new(),
+            path: path.to_path_buf(),
+        }
+    }
+}
+
 /// A recording that cannot be used; names the file, the column and the row where there is one.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]

@@ -65,6 +65,15 @@ pub fn random_truth<R: Rng + ?Sized>(
         t.tilt_rad[j] = [g(tilt_sigma_rad), g(tilt_sigma_rad)];
         t.location_error_m[j] = Vector3::new(g(location_sigma_m), g(location_sigma_m), g(location_sigma_m));
     }
+    project_to_gauge(array, &mut t);
+    t
+}
+
+/// Moves a truth `t` onto the gauge of `selfcal::model`, so that it is the representative the fit
+/// estimates: the common rotation of the tilts is removed (least squares), then the mean location
+/// error and the common scaling about the centroid.
+pub fn project_to_gauge(array: &crate::array::Array, t: &mut SensorSet) {
+    let n = array.len();
     // Rotation gauge: remove the common rotation (least squares over the tilts).
     let mut a = nalgebra::Matrix3::zeros();
     let mut b = Vector3::zeros();
@@ -93,7 +102,6 @@ pub fn random_truth<R: Rng + ?Sized>(
             *d -= r * (num / den);
         }
     }
-    t
 }
 
 fn random_attitude<R: Rng + ?Sized>(rng: &mut R) -> UnitQuaternion<f64> {
@@ -273,4 +281,29 @@ pub fn simulate<R: Rng + ?Sized>(
         })
         .collect();
     Ok(Simulated { recording, up, motion })
+}
+
+/// The Cramer-Rao bound in the gauge at the truth of a simulated recording, on the samples the
+/// calibration `cal` used (its static intervals and dynamic samples), for white noise of
+/// `noise_sigma_m_s2` per sample and accelerometer; with `use_gyro`, the rate taken as known (the
+/// gyroscopes'). Also returns the Fisher information's null directions before the gauge.
+pub fn bound_at_truth(
+    array: &RecordingArray,
+    sim: &Simulated,
+    cal: &super::calibrate::Calibration,
+    truth: &SensorSet,
+    noise_sigma_m_s2: &[f64],
+    gravity_m_s2: f64,
+    use_gyro: bool,
+) -> Result<(nalgebra::DMatrix<f64>, usize), super::fit::FitError> {
+    let seg = &cal.segmentation;
+    let counts: Vec<usize> = seg.static_intervals.iter().map(|iv| iv.len()).collect();
+    let up: Vec<_> = seg.static_intervals.iter().map(|iv| sim.up[(iv.start + iv.end) / 2]).collect();
+    let prepared = super::calibrate::prepare_dynamic(&sim.recording, seg, use_gyro, Some(Vector3::zeros()));
+    let mut dynamic = prepared.data;
+    if let (Some(d), true) = (dynamic.as_mut(), use_gyro) {
+        d.reference_rate_rad_s = Some(prepared.index.iter().map(|&i| sim.motion[i].omega_rad_s).collect());
+    }
+    let motion: Vec<SampleMotion> = prepared.index.iter().map(|&i| sim.motion[i]).collect();
+    super::fit::cramer_rao(&array.array, &counts, noise_sigma_m_s2, &up, dynamic.as_ref(), &motion, truth, gravity_m_s2)
 }

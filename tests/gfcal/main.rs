@@ -10,6 +10,7 @@ mod misalignment;
 mod navigation;
 mod noise;
 mod pose;
+mod protocol;
 mod reference;
 mod report;
 mod selfcal;

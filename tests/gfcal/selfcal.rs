@@ -7,12 +7,11 @@ use std::path::{Path, PathBuf};
 
 use gfcal::config::array::load_recording_array;
 use gfcal::rng::trial_rng;
-use gfcal::selfcal::calibrate::{CalibrateSettings, Calibration, calibrate, prepare_dynamic};
-use gfcal::selfcal::fit::cramer_rao;
-use gfcal::selfcal::model::{NAMES, PER_ACCEL, SampleMotion, SensorSet};
+use gfcal::selfcal::calibrate::{CalibrateSettings, Calibration, calibrate};
+use gfcal::selfcal::model::{NAMES, PER_ACCEL, SensorSet};
 use gfcal::selfcal::recording::RecordingArray;
 use gfcal::selfcal::segment::DetectorSettings;
-use gfcal::selfcal::simulate::{Protocol, Simulated, random_truth, simulate};
+use gfcal::selfcal::simulate::{Protocol, Simulated, bound_at_truth, random_truth, simulate};
 use rayon::prelude::*;
 
 fn repo() -> PathBuf {
@@ -58,18 +57,7 @@ fn crb(
     truth: &SensorSet,
     use_gyro: bool,
 ) -> (nalgebra::DMatrix<f64>, usize) {
-    let rec = &sim.recording;
-    let seg = &cal.segmentation;
-    let counts: Vec<usize> = seg.static_intervals.iter().map(|iv| iv.len()).collect();
-    let up: Vec<_> = seg.static_intervals.iter().map(|iv| sim.up[(iv.start + iv.end) / 2]).collect();
-    let prepared = prepare_dynamic(rec, seg, use_gyro, Some(nalgebra::Vector3::zeros()));
-    let mut dynamic = prepared.data;
-    if let (Some(d), true) = (dynamic.as_mut(), use_gyro) {
-        d.reference_rate_rad_s = Some(prepared.index.iter().map(|&i| sim.motion[i].omega_rad_s).collect());
-    }
-    let motion: Vec<SampleMotion> = prepared.index.iter().map(|&i| sim.motion[i]).collect();
-    cramer_rao(&array.array, &counts, &vec![0.04; array.array.len()], &up, dynamic.as_ref(), &motion, truth, 9.80665)
-        .expect("crb")
+    bound_at_truth(array, sim, cal, truth, &vec![0.04; array.array.len()], 9.80665, use_gyro).expect("crb")
 }
 
 #[test]

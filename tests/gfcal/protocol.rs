@@ -1,0 +1,69 @@
+//! `gfcal run` on a hand-held protocol (`[protocol]`, `mc::protocol`): the MIMU4444 array file,
+//! simulated recordings calibrated gyroscope-free, the bound at each truth; and bad protocol
+//! configs refused naming the key.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The shipped protocol config, shortened (8 poses of 9 s, 20 s of rotation, 3 trials), written
+/// beside the shipped one so that its array file resolves.
+fn short_protocol(dir: &Path, edit: impl Fn(String) -> String) -> PathBuf {
+    let text = std::fs::read_to_string(repo().join("configs/mimu4444_protocol.toml")).unwrap();
+    let text = text
+        .replace("trials_per_cell = 100", "trials_per_cell = 3")
+        .replace("poses = 20", "poses = 8")
+        .replace("pose_s = 22.0", "pose_s = 9.0")
+        .replace("dynamic_s = 100.0", "dynamic_s = 20.0")
+        .replace(
+            "file = \"arrays/mimu4444_corners.toml\"",
+            &format!("file = \"{}\"", repo().join("configs/arrays/mimu4444_corners.toml").display()),
+        );
+    let path = dir.join("protocol.toml");
+    std::fs::write(&path, edit(text)).unwrap();
+    path
+}
+
+fn run(config: &Path, out: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_gfcal")).arg("run").arg(config).arg("--out").arg(out).output().unwrap()
+}
+
+#[test]
+fn a_protocol_run_calibrates_every_trial_and_records_the_bound_of_every_parameter() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = short_protocol(dir.path(), |t| t);
+    let out = run(&config, &dir.path().join("out"));
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let summary = std::fs::read_to_string(dir.path().join("out/summary.csv")).unwrap();
+    let rows: Vec<Vec<&str>> =
+        summary.lines().skip(1).map(|l| l.split(',').collect()).filter(|r: &Vec<&str>| r[0] == "parameter").collect();
+    assert_eq!(rows.len(), 24 * 7, "every parameter of the 24 accelerometers");
+    for r in &rows {
+        let (n, crb): (usize, f64) = (r[4].parse().unwrap(), r[7].parse().unwrap());
+        assert_eq!(n, 3, "{}: every trial estimated", r[2]);
+        // A bound of a few times 1e-5 (scale factor, rad) to 1e-3 (bias, m/s^2; location, m).
+        assert!(crb.is_finite() && crb > 1e-7 && crb < 1e-2, "{}: crb_sigma {crb}", r[2]);
+    }
+}
+
+#[test]
+fn bad_protocols_are_refused_naming_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases: [(&str, &str, &str); 4] = [
+        ("pose_s = 9.0", "pose_s = 3.0", "protocol.pose_s"),
+        ("form = \"tilt\"", "form = \"triad\"", "calibration.form"),
+        ("[protocol]", "[schedule]\npreset = \"hung_lee_2006\"\n\n[protocol]", "protocol"),
+        ("use_gyro = false", "use_gyro = false\nposes_per_face = 2", "poses_per_face"),
+    ];
+    for (from, to, key) in cases {
+        let config = short_protocol(dir.path(), |t| t.replace(from, to));
+        let out = run(&config, &dir.path().join("bad"));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{key}: {err}");
+        assert!(err.contains(key) && err.contains("protocol.toml"), "{key}: {err}");
+        assert!(!dir.path().join("bad").exists(), "nothing written for {key}");
+    }
+}
