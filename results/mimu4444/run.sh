@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates results/mimu4444/: calibrates each of the six recordings (the other five held out),
-# writes recording_K.json and recording_K.html, then tables.md from them (summarize.py).
+# writes recording_K.json and recording_K.html, runs the Monte Carlo prediction of the protocol
+# (configs/mimu4444_protocol.toml into protocol_run/), then tables.md from them (summarize.py).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 data=../shared/data/mimu4444
@@ -11,4 +12,8 @@ for k in 1 2 3 4 5 6; do
     --json "results/mimu4444/recording_$k.json" --report "results/mimu4444/recording_$k.html" --held-out "${others[@]}" \
     > "results/mimu4444/recording_$k.txt"
 done
+# The Monte Carlo prediction of the protocol (100 simulated recordings, about 1.5 min).
+rm -rf results/mimu4444/protocol_run
+cargo run --release --quiet -- run configs/mimu4444_protocol.toml --out results/mimu4444/protocol_run > /dev/null
 python3 results/mimu4444/summarize.py results/mimu4444 > results/mimu4444/tables.md
+python3 results/mimu4444/figures.py results/mimu4444

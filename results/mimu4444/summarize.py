@@ -58,3 +58,21 @@ for a in range(1, 25):
     f = lambda v: (st.mean(x[0] for x in v), st.stdev(x[0] for x in v), st.mean(x[1] for x in v))
     bm, bs, bsg = f(b); km, ks, ksg = f(k); um, us, usg = f(tu); wm, ws, _ = f(tw)
     print(f"| {a} | {bm:.4f} | {bs:.1e} | {bsg:.1e} | {km-1:.2e} | {ks:.1e} | {ksg:.1e} | {um:.2e} | {us:.1e} | {wm:.2e} | {ws:.1e} | {usg:.1e} |")
+# The Monte Carlo prediction of configs/mimu4444_protocol.toml (run.sh writes it to protocol_run/).
+import csv, os
+pred = f"{d}/protocol_run/summary.csv"
+if os.path.exists(pred):
+    rows = [r for r in csv.DictReader(open(pred)) if r["table"] == "parameter"]
+    print("\n## Against the Monte Carlo prediction (configs/mimu4444_protocol.toml)\n")
+    print(f"Simulated recordings of this board's protocol ({rows[0]['n']} trials), calibrated gyroscope-free: the predicted sigma (median over the 24 accelerometers of the Cramer-Rao sigma, RMS over trials), how well the estimator meets it (RMS over trials of error / that trial's sigma, median and range over the 24), and the six real recordings' printed sigma and spread, both as medians over the 24 accelerometers, with the spread in units of the predicted sigma.\n")
+    print("| parameter | unit | predicted sigma | simulated RMS(error/sigma) median [min-max] | real printed sigma | real spread | real spread / predicted |")
+    print("|---|---|---|---|---|---|---|")
+    for name in ["scale_factor", "bias", "tilt_u", "tilt_w", "dx", "dy", "dz"]:
+        sel = [r for r in rows if r["name"].split(".")[1] == name]
+        crb = [float(r["crb_sigma"]) for r in sel]; rat = [float(r["ratio"]) for r in sel]
+        printed = []; spread = []; rel = []
+        for r, c in zip(sel, crb):
+            a = int(r["name"].split(".")[0][1:])
+            v = params[(name, a)]
+            printed.append(st.median(x[1] for x in v)); s = st.stdev(x[0] for x in v); spread.append(s); rel.append(s / c)
+        print(f"| {name} | {sel[0]['unit']} | {st.median(crb):.2e} | {st.median(rat):.2f} [{min(rat):.2f}-{max(rat):.2f}] | {st.median(printed):.2e} | {st.median(spread):.2e} | {st.median(rel):.1f} |")

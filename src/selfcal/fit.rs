@@ -23,6 +23,7 @@ use rayon::prelude::*;
 
 use super::model::{Gauge, PER_ACCEL, SampleMotion, Sensor, SensorSet, sensors};
 use super::motion::{self, SampleData};
+use super::track;
 use crate::array::Array;
 use crate::sensor::misalignment::tilt_basis;
 
@@ -54,7 +55,8 @@ impl DynamicData {
     pub fn samples(&self) -> usize {
         self.t_s.len()
     }
-    fn runs(&self) -> Vec<(usize, usize)> {
+    /// `(start, end)` of every run of consecutive samples.
+    pub fn runs(&self) -> Vec<(usize, usize)> {
         let mut v = Vec::new();
         for (i, &s) in self.run_starts.iter().enumerate() {
             let e = self.run_starts.get(i + 1).copied().unwrap_or(self.samples());
@@ -118,11 +120,18 @@ impl Fit {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum FitError {
-    #[error("{found} static interval(s); a calibration needs at least {needed}")]
-    TooFewPoses { found: usize, needed: usize },
+    #[error(
+        "{found} static interval(s); a calibration {} needs at least {needed}",
+        if *with_dynamic { "with a rotation phase" } else { "from static poses alone (no rotation phase)" }
+    )]
+    TooFewPoses { found: usize, needed: usize, with_dynamic: bool },
     #[error("the normal equations are singular beyond the gauge: {0}")]
     Singular(String),
 }
+
+/// Static poses of unknown direction that a calibration without a rotation phase needs (see
+/// `fit`).
+pub const STATIC_ONLY_POSES: usize = 9;
 
 /// First guess of each pose's up direction from nominal axes (least squares over the array).
 fn initial_up(array: &Array, data: &StaticData) -> Vec<Vector3<f64>> {
@@ -163,13 +172,19 @@ pub fn fit(
 ) -> Result<Fit, FitError> {
     let n = array.len();
     let poses = stat.means.nrows();
+    let with_dynamic = dynamic.is_some_and(|d| d.samples() > 0);
     // 4 N static parameters (less 3 of gauge) against N P means with 2 P pose unknowns; and
     // each accelerometer needs its scale factor, bias and two tilts from at least 4 poses.
-    let needed = 4_usize.max(((4 * n).saturating_sub(3)).div_ceil(n.saturating_sub(2).max(1)) + 1);
+    // Static poses alone need 9 more: the pose directions can move by `w_p = M u_p + c` (M
+    // symmetric, 9 unknowns; the antisymmetric part is the rotation gauge), which every
+    // accelerometer's scale factor, bias and tilts absorb, wherever the move stays tangent,
+    // `u_p^T M u_p + c . u_p = 0`, at every pose: one equation a pose, so 8 poses or fewer
+    // leave a direction unseen. A rotation phase sees those parameters without the poses.
+    let counted = 4_usize.max(((4 * n).saturating_sub(3)).div_ceil(n.saturating_sub(2).max(1)) + 1);
+    let needed = if with_dynamic { counted } else { counted.max(STATIC_ONLY_POSES) };
     if poses < needed {
-        return Err(FitError::TooFewPoses { found: poses, needed });
+        return Err(FitError::TooFewPoses { found: poses, needed, with_dynamic });
     }
-    let with_dynamic = dynamic.is_some_and(|d| d.samples() > 0);
     let reference_rate = dynamic.and_then(|d| d.reference_rate_rad_s.as_ref()).is_some();
     let gauge = Gauge {
         rotation: !(with_dynamic && reference_rate),
@@ -208,9 +223,14 @@ pub fn fit(
     gauss_newton(array, stat, None, settings, &weights, &static_only_active, &static_constraints, &mut state, 30);
 
     if let Some(d) = dynamic.filter(|_| with_dynamic) {
-        initial_motion(array, d, &weights, &mut state);
+        state.motion = track::from_scratch(array, d, &weights.dynamic_w, &state.params);
     }
-    for _round in 0..4 {
+    for round in 0..4 {
+        if round > 0
+            && let Some(d) = dynamic.filter(|_| with_dynamic)
+        {
+            state.motion = track::refine(array, d, &weights.dynamic_w, &state.params, &state.motion, true);
+        }
         let (it, ok) = gauss_newton(
             array,
             stat,
@@ -253,7 +273,9 @@ pub fn fit(
     let null_directions = count_null(&normal.h, &active);
     let covariance = constrained_inverse(&normal.h, &constraints, &active)?;
     let omega_sigma_rad_s = match dynamic.filter(|_| with_dynamic) {
-        Some(d) => motion_sigmas(array, d, &weights, &state, reference_rate, &covariance),
+        Some(d) => {
+            track::rate_sigmas(array, d, &weights.dynamic_w, &state.params, &state.motion, reference_rate, &covariance)
+        }
         None => Vec::new(),
     };
     let (chi2, dof) = static_chi2(array, stat, &state, settings, stat.counts.as_slice());
@@ -307,128 +329,6 @@ fn dynamic_leverage(d: &DynamicData, j: usize, local: f64) -> f64 {
         }
     }
     if count > lev { count / (count - lev) } else { f64::INFINITY }
-}
-
-/// Motion of every dynamic sample from scratch: the better of the linear guess and the previous
-/// sample's motion advanced by its angular acceleration, refined; then signs by continuity.
-fn initial_motion(array: &Array, d: &DynamicData, w: &Weights, state: &mut State) {
-    state.motion = motion_from_scratch(array, d, &w.dynamic_w, &state.params);
-}
-
-/// The motion of every sample of `d` given the sensor parameters, from scratch: the better of the
-/// linear guess and the previous sample's motion advanced by its angular acceleration, refined;
-/// then rate signs by continuity.
-pub fn motion_from_scratch(array: &Array, d: &DynamicData, dynamic_w: &[f64], params: &SensorSet) -> Vec<SampleMotion> {
-    let w = Weights { static_w: DMatrix::zeros(0, 0), dynamic_w: dynamic_w.to_vec() };
-    let mut state =
-        State { params: params.clone(), up: Vec::new(), motion: vec![SampleMotion::default(); d.samples()] };
-    let state = &mut state;
-    let sens = sensors(array, &state.params);
-    let n = array.len();
-    for (s, e) in d.runs() {
-        for i in s..e {
-            let row: Vec<f64> = d.outputs.row(i).iter().copied().collect();
-            let data = SampleData { outputs: &row, used: &d.used[i * n..(i + 1) * n], weights: &w.dynamic_w };
-            let fixed = d.reference_rate_rad_s.as_ref().map(|r| r[i]);
-            let mut best: Option<(SampleMotion, f64)> = None;
-            let mut starts = vec![motion::linear_guess(&sens, &data)];
-            if i > s {
-                let prev = state.motion[i - 1];
-                let dt = d.t_s[i] - d.t_s[i - 1];
-                starts.push(SampleMotion { omega_rad_s: prev.omega_rad_s + prev.alpha_rad_s2 * dt, ..prev });
-            }
-            for mut st in starts {
-                if let Some(wr) = fixed {
-                    st.omega_rad_s = wr;
-                }
-                let (m, c, _) = motion::solve(&sens, &data, st, fixed.is_some());
-                if best.is_none_or(|(_, bc)| c < bc) {
-                    best = Some((m, c));
-                }
-            }
-            state.motion[i] = best.map(|b| b.0).unwrap_or_default();
-        }
-        if d.reference_rate_rad_s.is_none() {
-            motion::orient_run(&d.t_s[s..e], &mut state.motion[s..e]);
-        }
-    }
-    std::mem::take(&mut state.motion)
-}
-
-/// Re-solves every sample's motion from its current value (parallel, independent per sample).
-///
-/// A sample's own problem has more than one basin at high rates (the z baseline of a flat board
-/// is short, so the gradient's z column is weakly seen). A sample whose misfit stands out (more
-/// than 5 times the run's median, and more than 4 per output) is also solved from its
-/// neighbours' motions carried to its time by their angular accelerations, and from the linear
-/// guess, and keeps the best.
-fn refine_motion(
-    array: &Array,
-    d: &DynamicData,
-    w: &Weights,
-    params: &SensorSet,
-    motion_in: &[SampleMotion],
-) -> Vec<SampleMotion> {
-    let sens = sensors(array, params);
-    let n = array.len();
-    let fixed = d.reference_rate_rad_s.is_some();
-    let row = |i: usize| -> Vec<f64> { d.outputs.row(i).iter().copied().collect() };
-    let first: Vec<(SampleMotion, f64)> = (0..d.samples())
-        .into_par_iter()
-        .map(|i| {
-            let outputs = row(i);
-            let data = SampleData { outputs: &outputs, used: &d.used[i * n..(i + 1) * n], weights: &w.dynamic_w };
-            let (m, c, _) = motion::solve(&sens, &data, motion_in[i], fixed);
-            (m, c)
-        })
-        .collect();
-    let mut costs: Vec<f64> = first.iter().map(|f| f.1).collect();
-    costs.sort_by(f64::total_cmp);
-    let median = costs.get(costs.len() / 2).copied().unwrap_or(0.0);
-    let run_of: Vec<usize> = {
-        let mut v = vec![0; d.samples()];
-        for (r, (s, e)) in d.runs().into_iter().enumerate() {
-            v[s..e].fill(r);
-        }
-        v
-    };
-    let mut out: Vec<SampleMotion> = (0..d.samples())
-        .into_par_iter()
-        .map(|i| {
-            let (mut best, mut best_cost) = first[i];
-            let used = d.used[i * n..(i + 1) * n].iter().filter(|&&u| u).count() as f64;
-            if best_cost <= 5.0 * median || best_cost <= 4.0 * used {
-                return best;
-            }
-            let outputs = row(i);
-            let data = SampleData { outputs: &outputs, used: &d.used[i * n..(i + 1) * n], weights: &w.dynamic_w };
-            let mut starts = vec![motion::linear_guess(&sens, &data)];
-            for k in [i.wrapping_sub(1), i + 1] {
-                if k < d.samples() && run_of[k] == run_of[i] {
-                    let nb = first[k].0;
-                    let dt = d.t_s[i] - d.t_s[k];
-                    starts.push(SampleMotion { omega_rad_s: nb.omega_rad_s + nb.alpha_rad_s2 * dt, ..nb });
-                }
-            }
-            for mut st in starts {
-                if let Some(r) = &d.reference_rate_rad_s {
-                    st.omega_rad_s = r[i];
-                }
-                let (m, c, _) = motion::solve(&sens, &data, st, fixed);
-                if c < best_cost {
-                    best = m;
-                    best_cost = c;
-                }
-            }
-            best
-        })
-        .collect();
-    if !fixed {
-        for (s, e) in d.runs() {
-            motion::orient_run(&d.t_s[s..e], &mut out[s..e]);
-        }
-    }
-    out
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -501,7 +401,7 @@ fn apply_step(array: &Array, dynamic: Option<&DynamicData>, w: &Weights, state: 
         })
         .collect();
     let motion = match dynamic {
-        Some(d) => refine_motion(array, d, w, &params, &state.motion),
+        Some(d) => track::refine(array, d, &w.dynamic_w, &params, &state.motion, false),
         None => state.motion.clone(),
     };
     State { params, up, motion }
@@ -679,7 +579,7 @@ fn accumulate_sample(
     }
     // H -= M^T Hll^+ M; g -= M^T Hll^+ g_l (a pseudo-inverse where the sample does not fix its
     // whole motion: at zero rate the centripetal terms, and with them the rate, vanish).
-    let inv = motion_pseudo_inverse(&hll);
+    let inv = motion::information_inverse(&hll);
     let y = inv * gl;
     let m_used = scratch.index.len();
     for a in 0..m_used {
@@ -711,33 +611,6 @@ struct SampleScratch {
     wdl: Vec<SVector9>,
     dg: Vec<[f64; PER_ACCEL]>,
     index: Vec<usize>,
-}
-
-/// Inverse of one sample's motion information, or its pseudo-inverse when some motion direction
-/// is not observed (an exactly zero column, or an eigenvalue below `1e-12` of the largest after
-/// scaling by the diagonal).
-fn motion_pseudo_inverse(hll: &SMatrix<f64, 9, 9>) -> SMatrix<f64, 9, 9> {
-    let d = hll.diagonal().map(|v| if v > 0.0 { 1.0 / v.sqrt() } else { 0.0 });
-    let dm = SMatrix::<f64, 9, 9>::from_diagonal(&d);
-    let scaled = dm * hll * dm;
-    let full = d.iter().all(|&v| v > 0.0);
-    if full && let Some(chol) = scaled.cholesky() {
-        let l = chol.l();
-        let diag_min = l.diagonal().iter().fold(f64::INFINITY, |a, &b| a.min(b * b));
-        if diag_min > 1e-12 {
-            return dm * chol.inverse() * dm;
-        }
-    }
-    let eig = scaled.symmetric_eigen();
-    let max = eig.eigenvalues.iter().fold(0.0_f64, |a, &b| a.max(b));
-    let mut inv = SMatrix::<f64, 9, 9>::zeros();
-    for (k, &lam) in eig.eigenvalues.iter().enumerate() {
-        if lam > 1e-12 * max {
-            let v = eig.eigenvectors.column(k);
-            inv += v * v.transpose() / lam;
-        }
-    }
-    dm * inv * dm
 }
 
 type SVector9 = nalgebra::SVector<f64, 9>;
@@ -879,62 +752,6 @@ fn dynamic_residuals(array: &Array, d: &DynamicData, state: &State) -> (Vec<f64>
         }
     }
     ((0..n).map(|j| if c[j] > 0 { (s[j] / c[j] as f64).sqrt() } else { f64::NAN }).collect(), c)
-}
-
-/// Sigma of every sample's rate (per axis): the sample's own noise (`Hll^-1`) and the
-/// uncertainty of the accelerometer parameters carried into it,
-/// `Y + Y M Sigma_x M^T Y` with `Y = Hll^-1`, `M` the sample's motion-parameter information and
-/// `Sigma_x` the parameters' covariance in the gauge (the rate's estimate moves by `-Y M dx`).
-fn motion_sigmas(
-    array: &Array,
-    d: &DynamicData,
-    w: &Weights,
-    state: &State,
-    fixed: bool,
-    covariance: &DMatrix<f64>,
-) -> Vec<Vector3<f64>> {
-    let sens = sensors(array, &state.params);
-    let n = array.len();
-    let na = PER_ACCEL * n;
-    let cov = covariance.view((0, 0), (na, na)).map(|v| if v.is_finite() { v } else { 0.0 });
-    (0..d.samples())
-        .into_par_iter()
-        .map(|i| {
-            if fixed {
-                return Vector3::zeros();
-            }
-            let m = &state.motion[i];
-            let mut hll = SMatrix::<f64, 9, 9>::zeros();
-            let mut parts: Vec<(usize, SVector9, [f64; PER_ACCEL])> = Vec::with_capacity(n);
-            for (j, s) in sens.iter().enumerate() {
-                if !d.used[i * n + j] {
-                    continue;
-                }
-                let q = m.specific_force_m_s2(&s.position_m);
-                let dl = SVector9::from(s.d_motion(m));
-                let d4 = s.d_intrinsic(&q);
-                let dloc = s.d_location(m);
-                hll.ger(w.dynamic_w[j], &dl, &dl, 1.0);
-                parts.push((j, dl * w.dynamic_w[j], [d4[0], d4[1], d4[2], d4[3], dloc.x, dloc.y, dloc.z]));
-            }
-            let y = motion_pseudo_inverse(&hll);
-            let mut out = Vector3::zeros();
-            for c in 0..3 {
-                let row = y.row(6 + c);
-                // Column (j, a) of (Y M)[6 + c, :] is (row . w_j dl_j) dg_j[a].
-                let mut u = DVector::zeros(na);
-                for (j, wdl, dg) in &parts {
-                    let f = row.dot(&wdl.transpose());
-                    for a in 0..PER_ACCEL {
-                        u[PER_ACCEL * j + a] = f * dg[a];
-                    }
-                }
-                let carried = (&cov * &u).dot(&u);
-                out[c] = (y[(6 + c, 6 + c)] + carried.max(0.0)).sqrt();
-            }
-            out
-        })
-        .collect()
 }
 
 /// The Cramer-Rao bound in the gauge at a known state: the constrained inverse of the Fisher

@@ -8,6 +8,7 @@
 //! - [`segment`]: static intervals and the dynamic phase from the accelerometers alone;
 //! - [`model`]: parameters, the output model and its derivatives, the gauge;
 //! - [`motion`]: the motion of one sample (rate sign by continuity);
+//! - [`track`]: the motion of every sample of the rotation phase (basins repaired, signed, sigmas);
 //! - [`fit`]: the joint estimator and its covariance;
 //! - [`calibrate`]: the workflow; [`output`]: its JSON.
 
@@ -20,3 +21,4 @@ pub mod predict;
 pub mod recording;
 pub mod segment;
 pub mod simulate;
+pub mod track;

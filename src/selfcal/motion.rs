@@ -81,7 +81,9 @@ pub fn solve(
             };
             let ct = cost(sensors, data, &trial);
             if ct <= c {
-                let small = c - ct <= 1e-12 * c.max(1e-300);
+                // The cost is a chi^2 (weights are inverse variances): a decrease below 1e-8
+                // moves the motion by about 1e-4 of its sigma.
+                let small = c - ct <= 1e-8_f64.max(1e-12 * c);
                 m = trial;
                 c = ct;
                 improved = !small;
@@ -175,4 +177,31 @@ pub fn orient_run(t_s: &[f64], motion: &mut [SampleMotion]) {
             m.omega_rad_s = -m.omega_rad_s;
         }
     }
+}
+
+/// Inverse of one sample's motion information (the 9 x 9 normal matrix of `solve`), or its pseudo-inverse when some motion direction
+/// is not observed (an exactly zero column, or an eigenvalue below `1e-12` of the largest after
+/// scaling by the diagonal).
+pub fn information_inverse(hll: &SMatrix<f64, 9, 9>) -> SMatrix<f64, 9, 9> {
+    let d = hll.diagonal().map(|v| if v > 0.0 { 1.0 / v.sqrt() } else { 0.0 });
+    let dm = SMatrix::<f64, 9, 9>::from_diagonal(&d);
+    let scaled = dm * hll * dm;
+    let full = d.iter().all(|&v| v > 0.0);
+    if full && let Some(chol) = scaled.cholesky() {
+        let l = chol.l();
+        let diag_min = l.diagonal().iter().fold(f64::INFINITY, |a, &b| a.min(b * b));
+        if diag_min > 1e-12 {
+            return dm * chol.inverse() * dm;
+        }
+    }
+    let eig = scaled.symmetric_eigen();
+    let max = eig.eigenvalues.iter().fold(0.0_f64, |a, &b| a.max(b));
+    let mut inv = SMatrix::<f64, 9, 9>::zeros();
+    for (k, &lam) in eig.eigenvalues.iter().enumerate() {
+        if lam > 1e-12 * max {
+            let v = eig.eigenvectors.column(k);
+            inv += v * v.transpose() / lam;
+        }
+    }
+    dm * inv * dm
 }

@@ -6,10 +6,11 @@
 use nalgebra::Vector3;
 
 use super::calibrate::{prepare_dynamic, static_data};
-use super::fit::{DynamicData, motion_from_scratch};
+use super::fit::DynamicData;
 use super::model::{SensorSet, sensors};
 use super::recording::Recording;
 use super::segment::{DetectorSettings, segment};
+use super::track;
 use crate::array::Array;
 use crate::sensor::misalignment::tilt_basis;
 
@@ -95,7 +96,7 @@ pub fn predict(
 
 fn dynamic_residual(array: &Array, params: &SensorSet, d: &DynamicData, sigma: &[f64]) -> (f64, f64, usize) {
     let weights: Vec<f64> = sigma.iter().map(|s| 1.0 / (s * s)).collect();
-    let motion = motion_from_scratch(array, d, &weights, params);
+    let motion = track::from_scratch(array, d, &weights, params);
     let sens = sensors(array, params);
     let n = array.len();
     let mut ss = 0.0;
