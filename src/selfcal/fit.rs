@@ -366,7 +366,10 @@ fn gauss_newton(
                 // millionth of the cost when the model leaves a large misfit, is no progress.
                 let done = decrease <= 0.01_f64.max(1e-6 * cost);
                 cost = trial_cost;
-                lambda = (lambda * 0.1).max(1e-12);
+                // Marquardt damping relative to the diagonal: below 1e-6 the step is the
+                // Gauss-Newton step to working precision, and a lower floor only costs refits
+                // climbing back after a rejected step.
+                lambda = (lambda * 0.1).max(1e-6);
                 accepted = true;
                 if done {
                     return (it + 1, true);
