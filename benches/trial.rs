@@ -98,7 +98,7 @@ mod pieces {
         let (cfg, _) = quickstart();
         let cell = &cfg.cells[0];
         let x = cell.errors.sample(&cell.layout, &mut trial_rng(cfg.seed, 0));
-        bencher.bench_local(|| crb_sigma(cell, &x, 5e-3));
+        bencher.bench_local(|| crb_sigma(cell, &x, 5e-4));
     }
 
     #[divan::bench]

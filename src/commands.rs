@@ -21,13 +21,13 @@ struct Loaded {
     cfg: CalibrationConfig,
     layout: Layout,
     x: DVector<f64>,
-    sigma_m_s2: f64,
+    density_m_s2_per_sqrt_hz: f64,
 }
 
 fn load(path: &Path) -> anyhow::Result<Loaded> {
     let cfg = CalibrationConfig::load(path).map_err(InputError::Config)?;
-    let sigma_m_s2 = cfg.white_sigma_m_s2();
-    if sigma_m_s2 <= 0.0 {
+    let density_m_s2_per_sqrt_hz = cfg.white_density_m_s2_per_sqrt_hz();
+    if density_m_s2_per_sqrt_hz <= 0.0 {
         return Err(InputError::Other(format!(
             "{}: key `noise`: identifiability needs a white noise level (`white_density_ug_per_sqrt_hz` or `white_sigma_mg`): the Cramer-Rao sigmas scale with it",
             path.display()
@@ -39,15 +39,15 @@ fn load(path: &Path) -> anyhow::Result<Loaded> {
     let x = layout
         .pack(&cfg.errors.truth)
         .map_err(|e| InputError::Other(format!("{}: key `errors`: {e}", path.display())))?;
-    Ok(Loaded { cfg, layout, x, sigma_m_s2 })
+    Ok(Loaded { cfg, layout, x, density_m_s2_per_sqrt_hz })
 }
 
 fn describe_noise(l: &Loaded) -> String {
     let rate = l.cfg.schedule.steps()[0].sample_rate_hz;
     format!(
         "white noise {:.3} ug/sqrt(Hz): {:.4} mg per sample at {rate} Hz (bias instability and quantization are not in the bound)",
-        l.cfg.noise.white.density_m_s2_per_sqrt_hz() / M_S2_PER_UG,
-        l.sigma_m_s2 / M_S2_PER_MG
+        l.density_m_s2_per_sqrt_hz / M_S2_PER_UG,
+        l.density_m_s2_per_sqrt_hz * rate.sqrt() / M_S2_PER_MG
     )
 }
 
@@ -116,7 +116,7 @@ pub fn identify(path: &Path) -> anyhow::Result<()> {
     let l = load(path)?;
     let (cfg, layout) = (&l.cfg, &l.layout);
     let g = cfg.calibration.gravity_m_s2;
-    let fim = marginal_fisher(layout, &l.x, &cfg.schedule, g, l.sigma_m_s2, &cfg.calibration.pose);
+    let fim = marginal_fisher(layout, &l.x, &cfg.schedule, g, l.density_m_s2_per_sqrt_hz, &cfg.calibration.pose);
     let id = analyse(layout, &l.x, &fim, &cfg.targets);
     println!(
         "schedule `{}` ({} steps), {} form, evaluated at the config's error parameters",
@@ -159,7 +159,7 @@ pub fn design(path: &Path) -> anyhow::Result<()> {
         &cfg.schedule,
         &pool,
         &cfg.targets,
-        l.sigma_m_s2,
+        l.density_m_s2_per_sqrt_hz,
         cfg.calibration.gravity_m_s2,
         cfg.design.max_added_steps,
         &cfg.calibration.pose,

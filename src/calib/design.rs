@@ -88,7 +88,7 @@ fn score(scaled: &DMatrix<f64>) -> f64 {
 }
 
 /// Greedy design (see the module docs). Evaluates the information at `x` for white noise of
-/// per-sample sigma `sigma_m_s2`; adds at most `max_added` steps.
+/// density `density_m_s2_per_sqrt_hz`; adds at most `max_added` steps.
 #[allow(clippy::too_many_arguments)]
 pub fn greedy(
     layout: &Layout,
@@ -96,7 +96,7 @@ pub fn greedy(
     base: &Schedule,
     pool: &[Step],
     targets: &Targets,
-    sigma_m_s2: f64,
+    density_m_s2_per_sqrt_hz: f64,
     g_m_s2: f64,
     max_added: usize,
     pose: &PoseError,
@@ -105,13 +105,13 @@ pub fn greedy(
     let p = layout.len();
     let scale = |f: &DMatrix<f64>| DMatrix::from_fn(p, p, |a, b| f[(a, b)] * target[a] * target[b]);
     // Tilts of different steps do not mix, so the marginal information is a sum over steps.
-    let base_fim = marginal_fisher(layout, x, base, g_m_s2, sigma_m_s2, pose);
+    let base_fim = marginal_fisher(layout, x, base, g_m_s2, density_m_s2_per_sqrt_hz, pose);
     let before = analyse(layout, x, &base_fim, targets);
     let candidates: Vec<DMatrix<f64>> = pool
         .iter()
         .map(|s| {
             Schedule::new("candidate", vec![s.clone()])
-                .map(|one| scale(&marginal_fisher(layout, x, &one, g_m_s2, sigma_m_s2, pose)))
+                .map(|one| scale(&marginal_fisher(layout, x, &one, g_m_s2, density_m_s2_per_sqrt_hz, pose)))
         })
         .collect::<Result<_, _>>()?;
     let mut current = scale(&base_fim);

@@ -29,7 +29,9 @@ pub struct Estimate {
     pub params: ArrayParams,
     /// Covariance of `x` from the Jacobian and the residual variance, SI units.
     pub covariance: DMatrix<f64>,
-    /// Per-sample residual standard deviation, input-referred, m/s^2.
+    /// Per-sample residual standard deviation, input-referred, m/s^2, at the sample rate of the
+    /// schedule's first step (the residual white-noise density times the square root of that
+    /// rate: with steps at several rates a per-sample sigma differs from step to step).
     pub residual_sigma_m_s2: f64,
     pub status: FitStatus,
 }
@@ -39,6 +41,29 @@ impl Estimate {
     pub fn sigma(&self) -> DVector<f64> {
         DVector::from_iterator(self.x.len(), (0..self.x.len()).map(|i| self.covariance[(i, i)].max(0.0).sqrt()))
     }
+}
+
+/// The residual white-noise density of a fit, m/s^2/sqrt(Hz), pooled over steps and
+/// accelerometers: the within-step scatter of each step divided by its sample rate (a per-sample
+/// variance at rate `r` is `d^2 r`), plus `misfit`, the weighted squared misfit of the step
+/// means already in density units (each mean weighted by the time its samples span), over the
+/// degrees of freedom left by `parameters`. `inv_k[j]` refers accelerometer j's output to its
+/// input.
+pub fn residual_density_m_s2_per_sqrt_hz(
+    schedule: &super::schedule::Schedule,
+    meas: &super::measure::Measurements,
+    inv_k: &[f64],
+    misfit: f64,
+    parameters: usize,
+) -> f64 {
+    let within: f64 = schedule
+        .steps()
+        .iter()
+        .zip(&meas.steps)
+        .map(|(step, m)| m.within_ss.iter().zip(inv_k).map(|(ss, ik)| ss * ik * ik).sum::<f64>() / step.sample_rate_hz)
+        .sum();
+    let samples: usize = meas.steps.iter().map(|m| m.samples * inv_k.len()).sum();
+    ((within + misfit) / samples.saturating_sub(parameters).max(1) as f64).sqrt()
 }
 
 /// Why an estimator could not answer.

@@ -46,13 +46,16 @@ impl Targets {
     }
 }
 
-/// Fisher information of `schedule` at `x` for white noise of per-sample sigma `sigma_m_s2`.
+/// Fisher information of `schedule` at `x` for input-referred white noise of density
+/// `density_m_s2_per_sqrt_hz`. A step of `n` samples at rate `r` has per-sample sigma
+/// `k d sqrt(r)` at the output, so its mean carries `n / (k^2 d^2 r) = T / (k^2 d^2)`: a step's
+/// information depends on its duration `T`, not on its sample rate.
 pub fn fisher_information(
     layout: &Layout,
     x: &DVector<f64>,
     schedule: &Schedule,
     g_m_s2: f64,
-    sigma_m_s2: f64,
+    density_m_s2_per_sqrt_hz: f64,
 ) -> DMatrix<f64> {
     let n = layout.array().len();
     let mut f = DMatrix::zeros(layout.len(), layout.len());
@@ -62,7 +65,7 @@ pub fn fisher_information(
         layout.step_model(x, step, g_m_s2, &mut out, Some(&mut jac));
         for (j, gj) in jac.iter().enumerate() {
             let o = PER_ACCEL * j;
-            let w = step.samples() as f64 / (x[o] * sigma_m_s2).powi(2);
+            let w = step.sampled_duration_s() / (x[o] * density_m_s2_per_sqrt_hz).powi(2);
             for a in 0..PER_ACCEL {
                 for b in 0..PER_ACCEL {
                     f[(o + a, o + b)] += w * gj[a] * gj[b];

@@ -1,18 +1,23 @@
 //! The joint estimator: every parameter of every accelerometer from every step, by nonlinear
 //! least squares (Levenberg-Marquardt, from the `levenberg-marquardt` crate).
 //!
-//! Residual of step s, accelerometer j: `sqrt(n_s) (mean_sj - s_j(x)) / k0_j`, input-referred
-//! (m/s^2) with the starting scale factor `k0_j` as a fixed weight, so the cost is the per-sample
-//! least-squares cost up to the within-step scatter. The baseline model is separable by
-//! accelerometer (each output depends on its own 7 parameters only), so the joint problem is
-//! exactly the sum of one 7-parameter problem per accelerometer, and is solved that way. The
-//! covariance is `sigma^2 (J^T J)^-1`, `sigma^2` the per-sample residual variance (within-step
-//! scatter plus the misfit of the means, over the degrees of freedom), pooled over accelerometers.
+//! Residual of step s, accelerometer j: `sqrt(T_s) (mean_sj - s_j(x)) / k0_j`, input-referred
+//! with the starting scale factor `k0_j` as a fixed weight and `T_s = n_s / r_s` the time the
+//! step's `n_s` samples at rate `r_s` span: white noise of density `d` gives a step mean the
+//! variance `d^2 / T_s` at any sample rate, so every residual has the standard deviation `d`. The
+//! baseline model is separable by accelerometer (each output depends on its own 7 parameters
+//! only), so the joint problem is exactly the sum of one 7-parameter problem per accelerometer,
+//! and is solved that way (the constant weight `1 / k0_j` of a block does not move its minimum).
+//! The covariance is `d^2 (J^T J)^-1` with the residuals referred to the input by the *fitted*
+//! scale factor `k_j`, and `d^2` the residual density (within-step scatter plus the misfit of the
+//! means, over the degrees of freedom), pooled over accelerometers.
 
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
 use nalgebra::{DMatrix, DVector, Dyn, OMatrix, OVector, Owned, U7};
 
-use super::estimate::{CalibError, Estimate, FitStatus, check_shape, scaled_condition_number};
+use super::estimate::{
+    CalibError, Estimate, FitStatus, check_shape, residual_density_m_s2_per_sqrt_hz, scaled_condition_number,
+};
 use super::fisher::structurally_unidentifiable;
 use super::measure::Measurements;
 use super::params::{Form, Layout, PER_ACCEL, StepMotion};
@@ -37,6 +42,8 @@ struct BlockProblem<'a> {
     meas: &'a Measurements,
     j: usize,
     inv_k0: f64,
+    /// `sqrt(T_s)` of every step (s^0.5).
+    root_t: &'a [f64],
     x: OVector<f64, U7>,
 }
 
@@ -63,9 +70,9 @@ impl LeastSquaresProblem<f64, Dyn, U7> for BlockProblem<'_> {
         let xj = self.xj();
         let r = DVector::from_iterator(
             self.motions.len(),
-            self.motions.iter().zip(&self.meas.steps).map(|(m, st)| {
+            self.motions.iter().zip(&self.meas.steps).zip(self.root_t).map(|((m, st), rt)| {
                 let (s, _) = self.layout.accel_model(self.j, &xj, m);
-                (st.samples as f64).sqrt() * (st.mean[self.j] - s) * self.inv_k0
+                rt * (st.mean[self.j] - s) * self.inv_k0
             }),
         );
         r.iter().all(|v| v.is_finite()).then_some(r)
@@ -74,9 +81,9 @@ impl LeastSquaresProblem<f64, Dyn, U7> for BlockProblem<'_> {
     fn jacobian(&self) -> Option<OMatrix<f64, Dyn, U7>> {
         let xj = self.xj();
         let mut jm = OMatrix::<f64, Dyn, U7>::zeros(self.motions.len());
-        for (row, (m, st)) in self.motions.iter().zip(&self.meas.steps).enumerate() {
+        for (row, (m, rt)) in self.motions.iter().zip(self.root_t).enumerate() {
             let (_, d) = self.layout.accel_model(self.j, &xj, m);
-            let w = -(st.samples as f64).sqrt() * self.inv_k0;
+            let w = -rt * self.inv_k0;
             for (a, v) in d.iter().enumerate() {
                 jm[(row, a)] = w * v;
             }
@@ -136,6 +143,7 @@ pub fn estimate_unchecked(
             .unwrap_or(x_nominal),
     };
     let motions: Vec<StepMotion> = schedule.steps().iter().map(|s| StepMotion::new(s, g_m_s2)).collect();
+    let root_t: Vec<f64> = schedule.steps().iter().map(|s| s.sampled_duration_s().sqrt()).collect();
     let n = layout.array().len();
     let p = layout.len();
     let mut x = x0.clone();
@@ -148,14 +156,17 @@ pub fn estimate_unchecked(
         let o = PER_ACCEL * j;
         let inv_k0 = 1.0 / nominal.sensors[j].scale_factor;
         let x_block = OVector::<f64, U7>::from_fn(|a, _| x0[o + a]);
-        let problem = BlockProblem { layout, motions: &motions, meas, j, inv_k0, x: x_block };
+        let problem = BlockProblem { layout, motions: &motions, meas, j, inv_k0, root_t: &root_t, x: x_block };
         let (problem, report) = LevenbergMarquardt::new().with_patience(200).minimize(problem);
         iterations += report.number_of_evaluations;
         x.rows_mut(o, PER_ACCEL).copy_from(&problem.x);
         match (problem.residuals(), problem.jacobian()) {
             (Some(r), Some(jac)) => {
-                misfit += r.norm_squared();
-                jtj.view_mut((o, o), (PER_ACCEL, PER_ACCEL)).copy_from(&(jac.transpose() * &jac));
+                // Referred to the input by the fitted scale factor: residuals and Jacobian scale
+                // by k0 / k.
+                let refer = (problem.x[0] * inv_k0).recip().powi(2);
+                misfit += r.norm_squared() * refer;
+                jtj.view_mut((o, o), (PER_ACCEL, PER_ACCEL)).copy_from(&(jac.transpose() * &jac * refer));
                 let dyn_jac = DMatrix::from_iterator(jac.nrows(), PER_ACCEL, jac.iter().copied());
                 condition = condition.max(scaled_condition_number(&dyn_jac));
             }
@@ -173,15 +184,12 @@ pub fn estimate_unchecked(
             dead.push((j + 1).to_string());
         }
     }
-    let within: f64 = meas
-        .steps
-        .iter()
-        .map(|m| (0..n).map(|a| m.within_ss[a] / nominal.sensors[a].scale_factor.powi(2)).sum::<f64>())
-        .sum();
-    let samples: usize = meas.steps.iter().map(|m| m.samples * n).sum();
-    let sigma2 = (within + misfit) / samples.saturating_sub(p).max(1) as f64;
-    let covariance =
-        block_inverse(&jtj, n).map(|inv| inv * sigma2).unwrap_or_else(|| DMatrix::from_element(p, p, f64::NAN));
+    let inv_k: Vec<f64> = (0..n).map(|j| 1.0 / x[PER_ACCEL * j]).collect();
+    let density = residual_density_m_s2_per_sqrt_hz(schedule, meas, &inv_k, misfit, p);
+    let covariance = block_inverse(&jtj, n)
+        .map(|inv| inv * density.powi(2))
+        .unwrap_or_else(|| DMatrix::from_element(p, p, f64::NAN));
+    let rate0 = schedule.steps().first().map(|s| s.sample_rate_hz).unwrap_or(1.0);
     let finite = x.iter().all(|v| v.is_finite()) && misfit.is_finite();
     let mut message = if messages.is_empty() { "converged".to_string() } else { messages.join("; ") };
     // A solution where an accelerometer's scale factor collapses (a dead or disconnected channel),
@@ -206,7 +214,7 @@ pub fn estimate_unchecked(
         params: layout.unpack(&x),
         x,
         covariance,
-        residual_sigma_m_s2: sigma2.sqrt(),
+        residual_sigma_m_s2: density * rate0.sqrt(),
         status,
     })
 }

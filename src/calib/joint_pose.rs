@@ -1,10 +1,10 @@
 //! The joint estimator with pose error: every error parameter of every accelerometer and the two
 //! tilt angles of every step whose fixture is not perfect (`calib::pose`), by damped Gauss-Newton.
 //!
-//! Residuals: `sqrt(n_s) (mean_sj - s_j(x, t_s)) / k0_j` for every step and accelerometer
-//! (input-referred, as in `calib::joint`), and `t_s,c (sigma / sigma_t)` for every tilt angle with
-//! a finite prior sigma `sigma_t` (a Gaussian prior written as a pseudo-observation; `sigma` the
-//! per-sample noise). The tilts couple the accelerometers, so the problem is solved whole
+//! Residuals: `sqrt(T_s) (mean_sj - s_j(x, t_s)) / k0_j` for every step and accelerometer
+//! (input-referred, `T_s` the time the step's samples span, as in `calib::joint`), and
+//! `t_s,c (sigma / sigma_t)` for every tilt angle with a finite prior sigma `sigma_t` (a Gaussian
+//! prior written as a pseudo-observation; `sigma` the white-noise density). The tilts couple the accelerometers, so the problem is solved whole
 //! (`7 N + 2 S` unknowns), starting from the per-accelerometer fit of `calib::joint` with every
 //! tilt at zero. The covariance is `sigma^2 (J^T J)^-1` of the whole problem, its parameter block
 //! reported: the Cramer-Rao bound of `pose::marginal_fisher` at the solution.
@@ -27,12 +27,14 @@ use super::pose::{PoseError, motion_and_partials, output_by_motion};
 use super::schedule::Schedule;
 use crate::sensor::params::ArrayParams;
 
-/// The smallest noise sigma used to weigh the tilt priors, m/s^2 (noise-free data would give
-/// the priors no weight at all and leave a free rotation unresolved).
-const SIGMA_FLOOR_M_S2: f64 = 1e-12;
+/// The smallest noise density used to weigh the tilt priors, m/s^2/sqrt(Hz) (noise-free data
+/// would give the priors no weight at all and leave a free rotation unresolved).
+const DENSITY_FLOOR_M_S2_PER_SQRT_HZ: f64 = 1e-12;
 
-/// Fits every parameter and the tilts of every step with pose error. `sigma_m_s2` is the
-/// per-sample white-noise sigma (input-referred) that weighs the tilt priors against the data.
+/// Fits every parameter and the tilts of every step with pose error. `density_m_s2_per_sqrt_hz`
+/// is the white-noise density (input-referred) that weighs the tilt priors against the data: a
+/// step mean's residual is weighted by the square root of the time its samples span, so that it
+/// has the standard deviation of the density at any sample rate.
 /// With a perfect fixture this is [`estimate_unchecked`] itself.
 #[allow(clippy::too_many_arguments)]
 pub fn estimate_with_poses(
@@ -43,14 +45,14 @@ pub fn estimate_with_poses(
     start: Start,
     g_m_s2: f64,
     pose: &PoseError,
-    sigma_m_s2: f64,
+    density_m_s2_per_sqrt_hz: f64,
 ) -> Result<Estimate, CalibError> {
     let first = estimate_unchecked(layout, schedule, meas, nominal, start, g_m_s2)?;
     if pose.is_perfect() {
         return Ok(first);
     }
     check_shape(layout, schedule.len(), meas)?;
-    let sigma = sigma_m_s2.max(SIGMA_FLOOR_M_S2);
+    let sigma = density_m_s2_per_sqrt_hz.max(DENSITY_FLOOR_M_S2_PER_SQRT_HZ);
     let n = layout.array().len();
     let p = layout.len();
     let tilted = pose.tilted_steps(schedule);
@@ -70,7 +72,7 @@ pub fn estimate_with_poses(
         for (s, (step, st)) in schedule.steps().iter().zip(&meas.steps).enumerate() {
             let t = tilt_of[s].map(|c| [z[p + 2 * c], z[p + 2 * c + 1]]).unwrap_or([0.0, 0.0]);
             let (motion, partials) = motion_and_partials(step, t, g_m_s2);
-            let root_n = (st.samples as f64).sqrt();
+            let root_n = (st.samples as f64 / step.sample_rate_hz).sqrt();
             for j in 0..n {
                 let o = PER_ACCEL * j;
                 let xj: [f64; PER_ACCEL] = std::array::from_fn(|a| z[o + a]);
@@ -174,10 +176,9 @@ pub fn estimate_with_poses(
     };
     let x = z.rows(0, p).clone_owned();
     let finite = x.iter().all(|v| v.is_finite()) && cost.is_finite();
-    let within: f64 =
-        meas.steps.iter().map(|m| (0..n).map(|a| m.within_ss[a] * inv_k0[a] * inv_k0[a]).sum::<f64>()).sum();
-    let samples: usize = meas.steps.iter().map(|m| m.samples * n).sum();
-    let residual_sigma = ((within + cost) / samples.saturating_sub(dim).max(1) as f64).sqrt();
+    let rate0 = schedule.steps().first().map(|s| s.sample_rate_hz).unwrap_or(1.0);
+    let residual_sigma =
+        super::estimate::residual_density_m_s2_per_sqrt_hz(schedule, meas, &inv_k0, cost, dim) * rate0.sqrt();
     let condition = scaled_condition_number(&jm);
     Ok(Estimate {
         form: layout.form(),

@@ -75,9 +75,7 @@ pub fn simulate<R: Rng + ?Sized>(
     let mut generator = NoiseGenerator::new(spec, n, rate_hz, rng);
     let mut steps = Vec::with_capacity(schedule.len());
     for (step, c) in schedule.steps().iter().zip(&clean.steps) {
-        if step.sample_rate_hz != rate_hz {
-            generator = generator.resampled(spec, step.sample_rate_hz);
-        }
+        generator = generator.at_rate(spec, step.sample_rate_hz);
         let mut stats = StepStats::empty(n);
         let mut sample = vec![0.0; n];
         for _ in 0..step.samples() {

@@ -124,17 +124,17 @@ pub fn output_by_motion(layout: &Layout, j: usize, xj: &[f64; PER_ACCEL], dm: &S
 }
 
 /// The Fisher information of the error parameters `x` with the pose tilts marginalised under
-/// their prior (see the module docs), for white noise of per-sample sigma `sigma_m_s2`. With a
-/// perfect fixture this is [`super::fisher::fisher_information`] itself.
+/// their prior (see the module docs), for white noise of density `density_m_s2_per_sqrt_hz`. With
+/// a perfect fixture this is [`super::fisher::fisher_information`] itself.
 pub fn marginal_fisher(
     layout: &Layout,
     x: &DVector<f64>,
     schedule: &Schedule,
     g_m_s2: f64,
-    sigma_m_s2: f64,
+    density_m_s2_per_sqrt_hz: f64,
     pose: &PoseError,
 ) -> DMatrix<f64> {
-    let mut f = super::fisher::fisher_information(layout, x, schedule, g_m_s2, sigma_m_s2);
+    let mut f = super::fisher::fisher_information(layout, x, schedule, g_m_s2, density_m_s2_per_sqrt_hz);
     if pose.is_perfect() {
         return f;
     }
@@ -152,7 +152,7 @@ pub fn marginal_fisher(
         for j in 0..n {
             let o = PER_ACCEL * j;
             let xj: [f64; PER_ACCEL] = std::array::from_fn(|a| x[o + a]);
-            let w = step.samples() as f64 / (x[o] * sigma_m_s2).powi(2);
+            let w = step.sampled_duration_s() / (x[o] * density_m_s2_per_sqrt_hz).powi(2);
             let gt = [output_by_motion(layout, j, &xj, &partials[0]), output_by_motion(layout, j, &xj, &partials[1])];
             for a in 0..PER_ACCEL {
                 for (c, gtc) in gt.iter().enumerate() {

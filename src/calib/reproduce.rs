@@ -166,9 +166,9 @@ pub fn reproduce(
     }
     let clean = super::measure::noise_free(array, &truth, paper, run.g_m_s2);
     let noise_free = super::paper::estimate(&layout, paper, &clean, run.g_m_s2)?.x;
-    let sigma = run.noise.white.sigma_m_s2(paper.steps()[0].sample_rate_hz);
+    let density = run.noise.white.density_m_s2_per_sqrt_hz();
     let crb = |s: &Schedule| -> DVector<f64> {
-        let fim = fisher_information(&layout, &x_true, s, run.g_m_s2, sigma);
+        let fim = fisher_information(&layout, &x_true, s, run.g_m_s2, density);
         let bad = structurally_unidentifiable(&layout, &x_true, s, run.g_m_s2);
         let inv =
             fim.try_inverse().unwrap_or_else(|| nalgebra::DMatrix::from_element(layout.len(), layout.len(), f64::NAN));

@@ -50,6 +50,12 @@ impl Step {
         ((self.duration_s * self.sample_rate_hz).round() as usize).max(1)
     }
 
+    /// The time the step's samples span, `samples / sample_rate_hz` (s): what the variance of a
+    /// step mean of white noise given as a density goes with.
+    pub fn sampled_duration_s(&self) -> f64 {
+        self.samples() as f64 / self.sample_rate_hz
+    }
+
     /// The unit up direction in body axes.
     pub fn up_b(&self) -> Vector3<f64> {
         match self.kind {

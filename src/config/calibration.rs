@@ -233,9 +233,9 @@ impl CalibrationConfig {
         Ok(Self { array, errors, noise, noise_seed, schedule, calibration, targets, design, text })
     }
 
-    /// Per-sample white-noise sigma at the schedule's first sample rate (input-referred, m/s^2).
-    pub fn white_sigma_m_s2(&self) -> f64 {
-        let rate = self.schedule.steps().first().map(|s| s.sample_rate_hz).unwrap_or(1.0);
-        self.noise.white.sigma_m_s2(rate)
+    /// White-noise density (input-referred, m/s^2/sqrt(Hz)): each step's per-sample sigma is
+    /// this times the square root of its own sample rate.
+    pub fn white_density_m_s2_per_sqrt_hz(&self) -> f64 {
+        self.noise.white.density_m_s2_per_sqrt_hz()
     }
 }

@@ -94,9 +94,7 @@ impl LogSimulation<'_> {
         let largest = self.effects.iter().map(|a| a.effect.parameters(statics, spins)).max().unwrap_or(0);
         let mut grad_buffer = vec![0.0; largest];
         for (si, step) in self.schedule.steps().iter().enumerate() {
-            if step.sample_rate_hz != rate0 {
-                generator = generator.resampled(&self.noise, step.sample_rate_hz);
-            }
+            generator = generator.at_rate(&self.noise, step.sample_rate_hz);
             let w = step.omega_b_rad_s();
             let w2 = w * w.transpose() - Matrix3::identity() * w.norm_squared();
             let up = step.up_b();

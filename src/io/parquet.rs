@@ -90,6 +90,7 @@ pub fn parameters_schema() -> SchemaRef {
         field("name", DataType::Utf8, "1"),
         field("unit", DataType::Utf8, "1"),
         field("true", DataType::Float64, "see column `unit`"),
+        field("nominal", DataType::Float64, "see column `unit`"),
         field("estimated", DataType::Float64, "see column `unit`"),
         field("error", DataType::Float64, "see column `unit`"),
         field("crb_sigma", DataType::Float64, "see column `unit`"),
@@ -180,9 +181,23 @@ pub fn parameters_batch(cfg: &McConfig, records: &[TrialRecord]) -> Result<Recor
     let (mut parameter, mut name, mut unit) =
         (Vec::with_capacity(rows), Vec::with_capacity(rows), Vec::with_capacity(rows));
     let (mut t, mut e, mut err, mut crb, mut es) = (vec![], vec![], vec![], vec![], vec![]);
+    let mut nom = Vec::with_capacity(rows);
+    // What nominal compensation assumes, per cell: the nominal scale factors, every other error 0.
+    let nominal: Vec<Vec<f64>> = cfg
+        .cells
+        .iter()
+        .map(|c| {
+            let params = crate::sensor::params::ArrayParams::nominal_with_scale_factors(
+                &c.array,
+                &c.errors.nominal_scale_factor,
+            );
+            c.layout.pack(&params).map(|x| x.iter().copied().collect()).unwrap_or_else(|_| vec![f64::NAN; p])
+        })
+        .collect();
     for r in records {
         let layout = &cfg.cells[r.cell as usize].layout;
-        for i in 0..p {
+        let nominal = &nominal[r.cell as usize];
+        for (i, nominal_i) in nominal.iter().enumerate().take(p) {
             trial.push(r.trial);
             cell.push(r.cell);
             accel.push((layout.accel(i) + 1) as u16);
@@ -190,6 +205,7 @@ pub fn parameters_batch(cfg: &McConfig, records: &[TrialRecord]) -> Result<Recor
             name.push(layout.name(i));
             unit.push(layout.kind(i).si_unit());
             t.push(r.truth[i]);
+            nom.push(*nominal_i);
             e.push(r.estimated[i]);
             err.push(r.estimated[i] - r.truth[i]);
             crb.push(r.crb_sigma[i]);
@@ -204,6 +220,7 @@ pub fn parameters_batch(cfg: &McConfig, records: &[TrialRecord]) -> Result<Recor
         Arc::new(StringArray::from(name)),
         Arc::new(StringArray::from(unit)),
         Arc::new(Float64Array::from(t)),
+        Arc::new(Float64Array::from(nom)),
         Arc::new(Float64Array::from(e)),
         Arc::new(Float64Array::from(err)),
         Arc::new(Float64Array::from(crb)),

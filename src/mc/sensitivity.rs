@@ -5,8 +5,10 @@
 //! and the standardised ranks of the output are regressed on those of the inputs; the
 //! coefficients are the SRRC, and `R^2` says how much of the output's rank variance the inputs
 //! explain linearly (an index is only meaningful when it is high). Drift metrics are magnitudes,
-//! so the inputs are magnitudes too: `|true value|` of each parameter for nominal compensation,
-//! `|estimated - true|` for estimated compensation. Inputs that do not vary are left out. At most
+//! so the inputs are magnitudes too: `|true - nominal|` of each parameter for nominal
+//! compensation (the nominal is 0 except for scale factors, whose true value is near the nominal
+//! one: `|true|` would rank a signed deviation), `|estimated - true|` for estimated compensation.
+//! Runs written before the `nominal` column existed fall back to `|true|`. Inputs that do not vary are left out. At most
 //! `max_trials` trials per cell are used (the first by trial id), so memory stays bounded.
 
 use std::collections::BTreeMap;
@@ -105,6 +107,7 @@ pub fn sensitivity(dir: &Path, max_trials: usize) -> Result<Vec<SensitivityRow>,
             let t = t.as_any().downcast_ref::<Float64Array>().cloned();
             let e = col(&b, "error", &file)?;
             let e = e.as_any().downcast_ref::<Float64Array>().cloned();
+            let nominal = b.column_by_name("nominal").and_then(|c| c.as_any().downcast_ref::<Float64Array>().cloned());
             let (Some(trial), Some(cell), Some(name), Some(t), Some(e)) = (trial, cell, name, t, e) else {
                 return Err(ParquetIoError::Format {
                     path: file.display().to_string(),
@@ -131,7 +134,7 @@ pub fn sensitivity(dir: &Path, max_trials: usize) -> Result<Vec<SensitivityRow>,
                 let ev = error.entry(key).or_default();
                 tv.resize(tv.len().max(k + 1), f64::NAN);
                 ev.resize(ev.len().max(k + 1), f64::NAN);
-                tv[k] = t.value(i).abs();
+                tv[k] = (t.value(i) - nominal.as_ref().map_or(0.0, |n| n.value(i))).abs();
                 ev[k] = e.value(i).abs();
             }
         }

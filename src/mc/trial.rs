@@ -56,7 +56,7 @@ pub struct Prepared {
     nominal: ArrayParams,
     /// Why no trial of this cell can be estimated (an unidentifiable schedule), if so.
     refusal: Option<String>,
-    white_sigma_m_s2: f64,
+    white_density_m_s2_per_sqrt_hz: f64,
 }
 
 impl Prepared {
@@ -70,20 +70,20 @@ impl Prepared {
                 .err()
                 .map(|e| e.to_string()),
         };
-        let rate = cell.schedule.steps()[0].sample_rate_hz;
-        Self { nominal, refusal, white_sigma_m_s2: cell.noise.white.sigma_m_s2(rate) }
+        Self { nominal, refusal, white_density_m_s2_per_sqrt_hz: cell.noise.white.density_m_s2_per_sqrt_hz() }
     }
 }
 
 /// Cramer-Rao sigma of every parameter of `cell` at `x`, SI, with the fixture's pose tilts
 /// marginalised under their prior (`calib::pose`; per-accelerometer blocks with a perfect fixture).
-pub fn crb_sigma(cell: &Cell, x: &DVector<f64>, sigma_m_s2: f64) -> Vec<f64> {
+pub fn crb_sigma(cell: &Cell, x: &DVector<f64>, density_m_s2_per_sqrt_hz: f64) -> Vec<f64> {
     let p = cell.layout.len();
-    if sigma_m_s2 <= 0.0 {
+    if density_m_s2_per_sqrt_hz <= 0.0 {
         return vec![0.0; p];
     }
     let pose = &cell.calibration.pose;
-    let fim = marginal_fisher(&cell.layout, x, &cell.schedule, cell.calibration.gravity_m_s2, sigma_m_s2, pose);
+    let g = cell.calibration.gravity_m_s2;
+    let fim = marginal_fisher(&cell.layout, x, &cell.schedule, g, density_m_s2_per_sqrt_hz, pose);
     pose::crb_sigma(&fim, cell.array.len(), pose.is_perfect())
 }
 
@@ -128,14 +128,14 @@ pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Tri
         Some(why) => Err(why.clone()),
         None => match cell.calibration.estimator {
             Estimator::Joint => {
-                let (start, sigma) = (cell.calibration.start, prepared.white_sigma_m_s2);
-                estimate_with_poses(layout, &cell.schedule, &meas, &prepared.nominal, start, g, pose, sigma)
+                let (start, density) = (cell.calibration.start, prepared.white_density_m_s2_per_sqrt_hz);
+                estimate_with_poses(layout, &cell.schedule, &meas, &prepared.nominal, start, g, pose, density)
             }
             Estimator::Paper => paper::estimate(layout, &cell.schedule, &meas, g),
         }
         .map_err(|e: CalibError| e.to_string()),
     };
-    let crb = crb_sigma(cell, &x_true, prepared.white_sigma_m_s2);
+    let crb = crb_sigma(cell, &x_true, prepared.white_density_m_s2_per_sqrt_hz);
     record(cell, prepared, seed, stream, trial, &x_true, &truth, estimate, crb)
 }
 

@@ -72,6 +72,8 @@ impl NoiseSpec {
 /// Generates the noise of an array's outputs sample by sample.
 #[derive(Debug, Clone)]
 pub struct NoiseGenerator {
+    /// The rate the generator steps at.
+    sample_rate_hz: f64,
     white_sigma_m_s2: f64,
     gm_phi: f64,
     gm_drive_m_s2: f64,
@@ -94,6 +96,7 @@ impl NoiseGenerator {
             .map(|_| if gm_sigma > 0.0 { gm_sigma * rng.sample::<f64, _>(StandardNormal) } else { 0.0 })
             .collect();
         Self {
+            sample_rate_hz,
             white_sigma_m_s2: spec.white.sigma_m_s2(sample_rate_hz),
             gm_phi,
             gm_drive_m_s2: gm_sigma * (1.0 - gm_phi * gm_phi).sqrt(),
@@ -104,8 +107,21 @@ impl NoiseGenerator {
         }
     }
 
+    /// The rate the generator steps at, Hz.
+    pub fn sample_rate_hz(&self) -> f64 {
+        self.sample_rate_hz
+    }
+
+    /// The same generator stepping at `sample_rate_hz`, its bias-instability states kept: itself
+    /// when it already runs at that rate. Call it at every step of a schedule whose steps may
+    /// differ in rate.
+    pub fn at_rate(self, spec: &NoiseSpec, sample_rate_hz: f64) -> Self {
+        if sample_rate_hz == self.sample_rate_hz { self } else { self.resampled(spec, sample_rate_hz) }
+    }
+
     /// The same generator, its bias-instability states kept, stepping at another sample rate.
     pub fn resampled(mut self, spec: &NoiseSpec, sample_rate_hz: f64) -> Self {
+        self.sample_rate_hz = sample_rate_hz;
         let dt_s = 1.0 / sample_rate_hz;
         if let Some(g) = spec.gauss_markov.filter(|g| g.sigma_m_s2 > 0.0) {
             self.gm_phi = (-dt_s / g.correlation_time_s).exp();

@@ -14,4 +14,5 @@ mod pose;
 mod protocol;
 mod reference;
 mod report;
+mod sample_rates;
 mod selfcal;

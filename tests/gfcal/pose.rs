@@ -27,7 +27,7 @@ use rayon::prelude::*;
 
 const TWO_PI: f64 = 2.0 * std::f64::consts::PI;
 /// 50 ug/sqrt(Hz) per sample at 100 Hz.
-const SIGMA_M_S2: f64 = 50.0 * M_S2_PER_UG * 10.0;
+const DENSITY_M_S2_PER_SQRT_HZ: f64 = 50.0 * M_S2_PER_UG;
 const WEAK: [&str; 6] = ["a1.dz", "a2.dy", "a3.dx", "a4.dx", "a5.dy", "a6.dz"];
 
 fn repo() -> PathBuf {
@@ -104,8 +104,10 @@ fn perfect_fixture_reproduces_the_committed_identify_output() {
 #[test]
 fn fixture_error_of_36_arcsec_raises_the_strong_location_bounds_to_about_006_mm() {
     let (array, layout, _, _, x, schedule) = paper();
-    let perfect = crb_sigma(&marginal_fisher(&layout, &x, &schedule, G, SIGMA_M_S2, &PoseError::PERFECT), 6, true);
-    let real = crb_sigma(&marginal_fisher(&layout, &x, &schedule, G, SIGMA_M_S2, &fixture(36.0)), 6, false);
+    let perfect =
+        crb_sigma(&marginal_fisher(&layout, &x, &schedule, G, DENSITY_M_S2_PER_SQRT_HZ, &PoseError::PERFECT), 6, true);
+    let real =
+        crb_sigma(&marginal_fisher(&layout, &x, &schedule, G, DENSITY_M_S2_PER_SQRT_HZ, &fixture(36.0)), 6, false);
     for i in 0..layout.len() {
         let name = layout.name(i);
         if !name.contains(".d") {
@@ -169,7 +171,7 @@ fn a_001_deg_tilt_of_one_spin_axis_moves_the_weak_locations_by_millimetres() {
 fn estimator_with_tilt_nuisance_meets_its_cramer_rao_bound_under_fixture_error() {
     let (array, layout, truth, nominal, x, schedule) = paper();
     let pose = fixture(36.0);
-    let bound = crb_sigma(&marginal_fisher(&layout, &x, &schedule, G, SIGMA_M_S2, &pose), 6, false);
+    let bound = crb_sigma(&marginal_fisher(&layout, &x, &schedule, G, DENSITY_M_S2_PER_SQRT_HZ, &pose), 6, false);
     let noise = NoiseSpec {
         white: WhiteNoise::Density { density_m_s2_per_sqrt_hz: 50.0 * M_S2_PER_UG },
         ..NoiseSpec::default()
@@ -189,8 +191,17 @@ fn estimator_with_tilt_nuisance_meets_its_cramer_rao_bound_under_fixture_error()
                 .collect();
             let delivered = gfcal::calib::pose::tilted_schedule(&schedule, &tilts);
             let meas = simulate(&array, &truth, &delivered, &noise, G, &mut rng);
-            let with =
-                estimate_with_poses(&layout, &schedule, &meas, &nominal, Start::Linear, G, &pose, SIGMA_M_S2).unwrap();
+            let with = estimate_with_poses(
+                &layout,
+                &schedule,
+                &meas,
+                &nominal,
+                Start::Linear,
+                G,
+                &pose,
+                DENSITY_M_S2_PER_SQRT_HZ,
+            )
+            .unwrap();
             assert!(with.status.converged, "{}", with.status.message);
             let without = estimate_unchecked(&layout, &schedule, &meas, &nominal, Start::Linear, G).unwrap();
             (&with.x - &x, &without.x - &x)
