@@ -132,12 +132,12 @@ fn print_summary(cfg: &McConfig, s: &Summary, complete: bool) {
             if factors.is_empty() { String::new() } else { format!(": {}", factors.join(", ")) }
         );
         println!(
-            "  {:<16} {:>6} {:>7} {:>12} {:>12} {:>12} {:>7} {:>9}",
-            "parameter", "unit", "n", "bias", "rmse", "crb_sigma", "ratio", "coverage"
+            "  {:<16} {:>6} {:>7} {:>12} {:>12} {:>12} {:>7} {:>11} {:>12} {:>11}",
+            "parameter", "unit", "n", "bias", "rmse", "crb_sigma", "ratio", "coverage_95", "median_abs", "worst_share"
         );
         for p in s.parameters.iter().filter(|p| p.cell == cell.index as u32) {
             println!(
-                "  {:<16} {:>6} {:>7} {:>12} {:>12} {:>12} {:>7.3} {:>9.3}",
+                "  {:<16} {:>6} {:>7} {:>12} {:>12} {:>12} {:>7.3} {:>11.3} {:>12} {:>11.3}",
                 p.name,
                 p.unit,
                 p.n,
@@ -145,7 +145,9 @@ fn print_summary(cfg: &McConfig, s: &Summary, complete: bool) {
                 sig(p.rmse, 4),
                 sig(p.crb_sigma, 4),
                 p.ratio,
-                p.coverage_95
+                p.coverage_95,
+                sig(p.median_abs_error, 4),
+                p.worst_share
             );
         }
         println!("  {:<44} {:>7} {:>7} {:>9} {:>12} {:>12}", "drift", "unit", "n", "diverged", "median", "p95");

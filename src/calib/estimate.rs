@@ -43,6 +43,41 @@ impl Estimate {
     }
 }
 
+/// The largest misalignment angle inside the model's small-error region, rad. The triad form is
+/// first order in its angles (its axes are not normalised): at 0.1 rad the neglected terms are
+/// 0.5%, and real misalignments are milliradians.
+pub const SMALL_ERROR_ANGLE_RAD: f64 = 0.1;
+
+/// Where an estimate `x` leaves the region in which the error model, linear in small errors
+/// about the nominal geometry, holds: a misalignment angle beyond [`SMALL_ERROR_ANGLE_RAD`], or
+/// a location error larger than the array itself (the largest distance of a nominal position
+/// from the array's centre). A fit that runs off along a weak direction (a location seen only
+/// through a small misalignment: a bilinear valley) ends there; it is not an answer, however low
+/// its cost. Names the worst offender.
+pub fn outside_small_error_region(layout: &Layout, x: &DVector<f64>) -> Option<String> {
+    let extent_m = layout.array().accelerometers().iter().map(|a| a.position_m.norm()).fold(0.0, f64::max);
+    let mut worst: Option<(f64, String)> = None;
+    for i in 0..x.len() {
+        let (excess, bound) = match layout.kind(i) {
+            super::params::ParamKind::Location(_) => {
+                (x[i].abs() / extent_m, format!("the array's extent {extent_m} m"))
+            }
+            super::params::ParamKind::Misalignment(_) => {
+                (x[i].abs() / SMALL_ERROR_ANGLE_RAD, format!("{SMALL_ERROR_ANGLE_RAD} rad"))
+            }
+            _ => continue,
+        };
+        let beyond = !excess.is_finite() || excess > 1.0;
+        if beyond && worst.as_ref().is_none_or(|w| excess > w.0 || excess.is_nan()) {
+            worst = Some((
+                excess,
+                format!("{} = {:.4e} {} exceeds {bound}", layout.name(i), x[i], layout.kind(i).si_unit()),
+            ));
+        }
+    }
+    worst.map(|w| w.1)
+}
+
 /// The residual white-noise density of a fit, m/s^2/sqrt(Hz), pooled over steps and
 /// accelerometers: the within-step scatter of each step divided by its sample rate (a per-sample
 /// variance at rate `r` is `d^2 r`), plus `misfit`, the weighted squared misfit of the step

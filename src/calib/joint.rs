@@ -16,7 +16,8 @@ use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
 use nalgebra::{DMatrix, DVector, Dyn, OMatrix, OVector, Owned, U7};
 
 use super::estimate::{
-    CalibError, Estimate, FitStatus, check_shape, residual_density_m_s2_per_sqrt_hz, scaled_condition_number,
+    CalibError, Estimate, FitStatus, check_shape, outside_small_error_region, residual_density_m_s2_per_sqrt_hz,
+    scaled_condition_number,
 };
 use super::fisher::structurally_unidentifiable;
 use super::measure::Measurements;
@@ -201,6 +202,13 @@ pub fn estimate_unchecked(
     } else if !condition.is_finite() {
         converged = false;
         message = format!("singular Jacobian at the solution; {message}");
+    } else if let Some(why) = outside_small_error_region(layout, &x) {
+        converged = false;
+        message = if messages.is_empty() {
+            format!("left the small-error region of the model: {why}")
+        } else {
+            format!("left the small-error region of the model: {why}; {message}")
+        };
     }
     let status = FitStatus {
         converged: converged && finite,

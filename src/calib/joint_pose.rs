@@ -180,6 +180,7 @@ pub fn estimate_with_poses(
     let residual_sigma =
         super::estimate::residual_density_m_s2_per_sqrt_hz(schedule, meas, &inv_k0, cost, dim) * rate0.sqrt();
     let condition = scaled_condition_number(&jm);
+    let region = super::estimate::outside_small_error_region(layout, &x);
     Ok(Estimate {
         form: layout.form(),
         params: layout.unpack(&x),
@@ -187,14 +188,15 @@ pub fn estimate_with_poses(
         covariance,
         residual_sigma_m_s2: residual_sigma,
         status: FitStatus {
-            converged: converged && finite && first.status.converged,
+            converged: converged && finite && first.status.converged && region.is_none(),
             iterations: first.status.iterations + iterations,
             cost: 0.5 * cost,
             condition_number: condition,
-            message: if converged {
-                format!("converged with {} pose tilt(s) as nuisance", 2 * tilted.len())
-            } else {
-                "pose fit did not converge in 100 iterations".into()
+            message: match (&region, converged, first.status.converged) {
+                (Some(why), _, _) => format!("left the small-error region of the model: {why}"),
+                (None, true, true) => format!("converged with {} pose tilt(s) as nuisance", 2 * tilted.len()),
+                (None, true, false) => format!("first fit (no tilts): {}", first.status.message),
+                (None, false, _) => "pose fit did not converge in 100 iterations".into(),
             },
         },
     })

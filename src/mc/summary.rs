@@ -1,6 +1,9 @@
 //! The summary of a run, computed from its Parquet files part by part (memory flat whatever the
 //! trial count): per cell and parameter the bias, RMSE, RMS Cramer-Rao sigma, the RMS of the
-//! normalised error `error / crb_sigma` (`ratio`) and the coverage of the estimator's 95% interval; per cell and drift column the median and 95th
+//! normalised error `error / crb_sigma` (`ratio`), the coverage of the estimator's 95% interval,
+//! and two robust columns that say when one trial dominates a row: the median absolute error
+//! (from a log-spaced histogram, within 0.5%) and `worst_share`, the share of the summed squared
+//! error that the worst trial holds; per cell and drift column the median and 95th
 //! percentile and 5th percentile (from a log-spaced histogram, 500 bins per decade: within 0.5%). A diverged
 //! navigation (+inf) counts as larger than any value; a missing one (NaN: no estimate) is left out.
 
@@ -29,6 +32,11 @@ pub struct ParameterSummary {
     pub ratio: f64,
     /// Fraction of trials with `|error| <= 1.96 estimated_sigma`.
     pub coverage_95: f64,
+    /// Median of `|error|` over the trials.
+    pub median_abs_error: f64,
+    /// `max error^2 / sum error^2`: near `1 / n` when every trial contributes alike, near 1 when
+    /// one trial makes the RMSE.
+    pub worst_share: f64,
 }
 
 /// Distribution of one drift column in one cell.
@@ -66,6 +74,9 @@ struct Acc {
     n_z: u64,
     covered: u64,
     n_cov: u64,
+    worst2: f64,
+    /// `|error|`, for its median.
+    abs_error: Option<Histogram>,
 }
 
 const BINS_PER_DECADE: f64 = 500.0;
@@ -144,6 +155,8 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
                     a.n += 1;
                     a.sum += e;
                     a.sum2 += e * e;
+                    a.worst2 = a.worst2.max(e * e);
+                    a.abs_error.get_or_insert_with(|| Histogram::new(String::new())).add(e);
                     let s = es.value(i);
                     if s.is_finite() {
                         a.n_cov += 1;
@@ -237,6 +250,8 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
                 crb_sigma: if a.n_crb > 0 { crb } else { f64::NAN },
                 ratio: if a.n_z > 0 { (a.z2 / a.n_z as f64).sqrt() } else { f64::NAN },
                 coverage_95: if a.n_cov > 0 { a.covered as f64 / a.n_cov as f64 } else { f64::NAN },
+                median_abs_error: a.abs_error.as_ref().map_or(f64::NAN, |h| h.quantile(0.5)),
+                worst_share: if a.sum2 > 0.0 { a.worst2 / a.sum2 } else { f64::NAN },
             }
         })
         .collect();
@@ -246,17 +261,28 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
 /// The summary as one CSV table (`table` is `parameter` or `drift`; empty fields where a
 /// statistic does not apply).
 pub fn summary_csv(s: &Summary) -> String {
-    let mut out =
-        String::from("table,cell,name,unit,n,bias,rmse,crb_sigma,ratio,coverage_95,diverged,median,p95,p05\n");
+    let mut out = String::from(
+        "table,cell,name,unit,n,bias,rmse,crb_sigma,ratio,coverage_95,diverged,median,p95,p05,median_abs_error,worst_share\n",
+    );
     for p in &s.parameters {
         out.push_str(&format!(
-            "parameter,{},{},{},{},{:e},{:e},{:e},{:e},{:e},,,,\n",
-            p.cell, p.name, p.unit, p.n, p.bias, p.rmse, p.crb_sigma, p.ratio, p.coverage_95
+            "parameter,{},{},{},{},{:e},{:e},{:e},{:e},{:e},,,,,{:e},{:e}\n",
+            p.cell,
+            p.name,
+            p.unit,
+            p.n,
+            p.bias,
+            p.rmse,
+            p.crb_sigma,
+            p.ratio,
+            p.coverage_95,
+            p.median_abs_error,
+            p.worst_share
         ));
     }
     for d in &s.drift {
         out.push_str(&format!(
-            "drift,{},{},{},{},,,,,,{},{:e},{:e},{:e}\n",
+            "drift,{},{},{},{},,,,,,{},{:e},{:e},{:e},,\n",
             d.cell, d.column, d.unit, d.n, d.diverged, d.median, d.p95, d.p05
         ));
     }

@@ -379,3 +379,25 @@ fn bad_measurements_get_an_error_or_a_status_never_a_panic() {
         e.status
     );
 }
+
+/// results/hung_lee_2006/README.md (issue 12, defect 5): in the paper's location step, 1 ppm of
+/// scale-factor error on accelerometer 1 misplaces the gravity term of the x and y spins (about
+/// 7 m/s^2, so 0.7 ug) and each spin's 0.014 mm of dz adds: 0.028 mm, so Table 8's 160 ppm is
+/// worth about 4.5 mm. Noise-free spins, the true static parameters with k scaled by 1 + 1e-6.
+#[test]
+fn one_ppm_of_scale_factor_moves_a1_dz_by_0028_mm_in_the_location_step() {
+    let array = cube();
+    let truth = paper_truth(&array).unwrap();
+    let schedule = paper_schedule(&array);
+    let meas = noise_free(&array, &truth, &schedule, G);
+    let spins: Vec<usize> = (0..schedule.len()).filter(|&i| schedule.steps()[i].is_spin()).collect();
+    let r = array.accelerometers()[0].position_m;
+    let located = |k_factor: f64| {
+        let mut s = truth.sensors[0];
+        s.scale_factor *= k_factor;
+        paper::location_only(&schedule, &meas, &spins, 0, &s, &r, G).unwrap()
+    };
+    let moved_mm = (located(1.0 + 1e-6) - located(1.0)) * 1e3;
+    assert!((moved_mm.z.abs() - 0.028).abs() < 0.001, "a1.dz moves {} mm per ppm", moved_mm.z);
+    assert!(moved_mm.x.abs() < 1e-4 && moved_mm.y.abs() < 1e-4, "{moved_mm:?}");
+}
