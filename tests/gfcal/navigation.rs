@@ -170,3 +170,55 @@ fn white_noise_rate_error_variance_matches_closed_form() {
     let ratio = sum_sq / runs as f64 / expected;
     assert!((ratio - 1.0).abs() < 0.075, "mean square / expected = {ratio}");
 }
+
+/// Closed forms at rest on the cube (rho = 0.1 m) with white noise of density N on every
+/// accelerometer and true compensation (issue 12). The solve's angular rows have
+/// `||P_alpha||_F^2 = 1.5 / rho^2 = 150` (50 per axis) and its linear rows `||P_a||_F^2 = 1.5`, and
+/// the two are orthogonal on the cube, so with `W` a unit random walk:
+/// - rate `d omega = P_alpha W`: `E|d omega(T)|^2 = 150 N^2 T`;
+/// - attitude, its integral: `150 N^2 T^3 / 3 = 50 N^2 T^3`;
+/// - velocity, gravity through the two horizontal tilt components (100 N^2 of the 150) integrated
+///   once more (`g^2 100 N^2 T^5 / 20`) plus the linear rows' noise: `5 g^2 N^2 T^5 + 1.5 N^2 T`;
+/// - position, once more: `(100 / 252) g^2 N^2 T^7 + 0.5 N^2 T^3`.
+///
+/// Each is asserted within 4 standard errors of its Monte Carlo mean (2000 runs; a mean of a
+/// 3-degree-of-freedom square has a relative standard error near 1.8%).
+#[test]
+fn white_noise_drift_at_rest_matches_the_closed_forms() {
+    let cube = Array::cube(0.1).unwrap();
+    let params = ArrayParams::nominal(&cube);
+    let n = 1e-4;
+    let spec = NoiseSpec { white: WhiteNoise::Density { density_m_s2_per_sqrt_hz: n }, ..NoiseSpec::default() };
+    let (t, step) = (4.0, 0.01);
+    let traj = Trajectory::rest(t, UnitQuaternion::identity());
+    let gravity = Vector3::new(0.0, 0.0, -G);
+    let runs = 2000;
+    let mut sq: [Vec<f64>; 4] = Default::default();
+    for seed in 0..runs {
+        let mut rng = ChaCha8Rng::seed_from_u64(10_000 + seed);
+        let generator = NoiseGenerator::new(&spec, 6, 1.0 / step, &mut rng);
+        let mut source = SimulatedArray::new(&cube, &params, &traj, gravity).with_noise(generator, rng, 0.0);
+        let mut comp = Compensator::new(&cube, &params).unwrap();
+        let d = navigate(&traj, &mut source, &mut comp, &gravity, step, &[t])[0];
+        for (k, v) in
+            [d.rate_err_rad_s, d.attitude_err_rad, d.velocity_err_m_s, d.position_err_m].into_iter().enumerate()
+        {
+            sq[k].push(v * v);
+        }
+    }
+    let n2 = n * n;
+    let expected = [
+        150.0 * n2 * t,
+        50.0 * n2 * t.powi(3),
+        5.0 * G * G * n2 * t.powi(5) + 1.5 * n2 * t,
+        100.0 / 252.0 * G * G * n2 * t.powi(7) + 0.5 * n2 * t.powi(3),
+    ];
+    for (k, name) in ["rate", "attitude", "velocity", "position"].iter().enumerate() {
+        let m = sq[k].iter().sum::<f64>() / runs as f64;
+        let var = sq[k].iter().map(|v| (v - m).powi(2)).sum::<f64>() / (runs - 1) as f64;
+        let se = (var / runs as f64).sqrt();
+        let z = (m - expected[k]) / se;
+        eprintln!("{name}: mean square {m:.4e}, closed form {:.4e}, {z:+.2} standard errors", expected[k]);
+        assert!(z.abs() < 4.0, "{name}: mean square {m:e} against {:e} ({z:+.2} standard errors)", expected[k]);
+    }
+}
