@@ -336,10 +336,12 @@ mod diagnosis {
         assert!(d.p_value_after > 0.01);
     }
 
+    /// The procedure names an effect at a nominal 1% rate on a clean log. Of 100 clean logs,
+    /// Binomial(100, 0.01) gives 4 or more false alarms with probability 1.8%: at least 97 quiet.
     #[test]
-    fn clean_logs_name_nothing_in_95_of_100_seeds() {
+    fn clean_logs_name_nothing_in_97_of_100_seeds() {
         let quiet = (0..100).filter(|&seed| run(&[], None, 1000 + seed).findings.is_empty()).count();
-        assert!(quiet >= 95, "{quiet} of 100 clean logs named nothing");
+        assert!(quiet >= 97, "{quiet} of 100 clean logs named nothing");
     }
 
     #[test]
