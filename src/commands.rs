@@ -239,9 +239,10 @@ pub fn paper(out: &Path, trials: usize, seed: u64, density_ug: f64) -> anyhow::R
     let t9 = table_markdown(&format!("Table 9 reproduced (location errors). {setting}"), &tables.table9);
     write("table8.md", t8.clone())?;
     write("table9.md", t9.clone())?;
-    let mut from8 = String::from("accelerometer,dx_mm,dy_mm,dz_mm\n");
-    for (j, d) in tables.table9_from_table8_mm.iter().enumerate() {
-        from8.push_str(&format!("{},{:.4},{:.4},{:.4}\n", j + 1, d[0], d[1], d[2]));
+    let mut from8 =
+        String::from("accelerometer,dx_mm,dy_mm,dz_mm,paper_model_dx_mm,paper_model_dy_mm,paper_model_dz_mm\n");
+    for (j, (d, m)) in tables.table9_from_table8_mm.iter().zip(&tables.table9_from_table8_paper_model_mm).enumerate() {
+        from8.push_str(&format!("{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}\n", j + 1, d[0], d[1], d[2], m[0], m[1], m[2]));
     }
     write("table9_from_table8.csv", from8)?;
     let settings = serde_json::json!({

@@ -18,6 +18,7 @@ pub mod joint;
 pub mod joint_pose;
 pub mod measure;
 pub mod paper;
+pub mod paper_model;
 pub mod params;
 pub mod pose;
 pub mod reproduce;

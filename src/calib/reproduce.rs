@@ -28,9 +28,14 @@ fn deg_triad(xy: f64, xz: f64, yx: f64, yz: f64, zx: f64, zy: f64) -> TriadAngle
     }
 }
 
+/// The paper's true misalignment angles (Table 7), the same for both triads.
+pub fn paper_angles() -> TriadAngles {
+    deg_triad(0.6, 0.5, 0.8, 0.7, 0.4, 0.8)
+}
+
 /// The paper's true parameters (Tables 6 and 7) on the cube with rho = 0.1 m.
 pub fn paper_truth(array: &Array) -> Result<ArrayParams, CalibError> {
-    let angles = deg_triad(0.6, 0.5, 0.8, 0.7, 0.4, 0.8);
+    let angles = paper_angles();
     let axes = Misalignment::Triad(vec![angles, angles]).axes(array)?;
     let k = [0.5, 2.5, 0.5, 2.5, 2.5, 2.5];
     let loc_mm = [[0.5, 0.8, 0.6], [0.7, 0.5, 0.6], [0.5, 0.9, 0.8], [0.4, 0.7, 0.5], [0.8, 0.7, 0.5], [0.6, 0.8, 0.9]];
@@ -120,6 +125,9 @@ pub struct TableRow {
     pub unit: String,
     pub truth: f64,
     pub paper: f64,
+    /// The paper's procedure, noise-free, on data from the `paper_model` hypothesis of the
+    /// paper's simulator (true axes an ordered product of shears).
+    pub paper_model: f64,
     pub noise_free: f64,
     pub mc_mean: f64,
     pub mc_std: f64,
@@ -145,6 +153,8 @@ pub struct PaperTables {
     /// Location errors (mm) recovered by our location step from the paper's own Table 8 static
     /// results and noise-free spins: `[accelerometer][x, y, z]`.
     pub table9_from_table8_mm: Vec<[f64; 3]>,
+    /// The same with the spins simulated from the `paper_model` hypothesis (shear-product axes).
+    pub table9_from_table8_paper_model_mm: Vec<[f64; 3]>,
     pub paper_schedule: McResult,
     pub augmented_schedule: McResult,
 }
@@ -166,6 +176,15 @@ pub fn reproduce(
     }
     let clean = super::measure::noise_free(array, &truth, paper, run.g_m_s2);
     let noise_free = super::paper::estimate(&layout, paper, &clean, run.g_m_s2)?.x;
+    let mut hypothesis = truth.clone();
+    let axes = super::paper_model::axes(array, &[paper_angles(), paper_angles()])?;
+    for (s, a) in hypothesis.sensors.iter_mut().zip(axes) {
+        s.axis = a;
+    }
+    let paper_model = {
+        let data = super::measure::noise_free(array, &hypothesis, paper, run.g_m_s2);
+        super::paper::estimate(&layout, paper, &data, run.g_m_s2)?.x
+    };
     let density = run.noise.white.density_m_s2_per_sqrt_hz();
     let crb = |s: &Schedule| -> DVector<f64> {
         let fim = fisher_information(&layout, &x_true, s, run.g_m_s2, density);
@@ -199,6 +218,7 @@ pub fn reproduce(
             unit: unit.to_string(),
             truth: x_true[i] * f,
             paper: paper_value,
+            paper_model: paper_model[i] * f,
             noise_free: noise_free[i] * f,
             mc_mean: mc_paper.mean[i] * f,
             mc_std: mc_paper.std[i] * f,
@@ -209,10 +229,19 @@ pub fn reproduce(
         if matches!(kind, ParamKind::Location(_)) { table9.push(row) } else { table8.push(row) }
     }
     let table9_from_table8_mm = location_from_table8(array, &truth, paper, run.g_m_s2)?;
-    Ok(PaperTables { table8, table9, table9_from_table8_mm, paper_schedule: mc_paper, augmented_schedule: mc_aug })
+    let table9_from_table8_paper_model_mm = location_from_table8(array, &hypothesis, paper, run.g_m_s2)?;
+    Ok(PaperTables {
+        table8,
+        table9,
+        table9_from_table8_mm,
+        table9_from_table8_paper_model_mm,
+        paper_schedule: mc_paper,
+        augmented_schedule: mc_aug,
+    })
 }
 
-/// Our location step (Table 5, noise-free spins) fed with the paper's Table 8 static results.
+/// Our location step (Table 5, noise-free spins simulated from `truth`) fed with the paper's
+/// Table 8 static results.
 fn location_from_table8(
     array: &Array,
     truth: &ArrayParams,

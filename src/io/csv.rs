@@ -19,12 +19,13 @@ pub fn drift_csv(rows: &[DriftRow]) -> String {
 use crate::calib::reproduce::TableRow;
 
 /// Columns of the reproduced tables.
-pub const TABLE_COLUMNS: [&str; 11] = [
+pub const TABLE_COLUMNS: [&str; 12] = [
     "parameter",
     "accelerometer",
     "unit",
     "true",
     "paper",
+    "paper_model",
     "noise_free",
     "mc_mean",
     "mc_std",
@@ -33,8 +34,18 @@ pub const TABLE_COLUMNS: [&str; 11] = [
     "augmented_crb_sigma",
 ];
 
-fn row_values(r: &TableRow) -> [f64; 8] {
-    [r.truth, r.paper, r.noise_free, r.mc_mean, r.mc_std, r.crb_sigma, r.augmented_mc_std, r.augmented_crb_sigma]
+fn row_values(r: &TableRow) -> [f64; 9] {
+    [
+        r.truth,
+        r.paper,
+        r.paper_model,
+        r.noise_free,
+        r.mc_mean,
+        r.mc_std,
+        r.crb_sigma,
+        r.augmented_mc_std,
+        r.augmented_crb_sigma,
+    ]
 }
 
 /// A reproduced table as CSV (full precision).
