@@ -1,10 +1,9 @@
 //! Simulated calibration logs: true parameters, noise, a schedule, and any effects of the library
 //! switched on with their magnitudes (the generator knows them; a fit of the log does not).
 
-use nalgebra::Matrix3;
 use rand::Rng;
 
-use super::effect::{Effect, SampleContext, Scope};
+use super::effect::{Effect, Scope, TruthSample};
 use super::log::{CalibrationLog, LogStep};
 use crate::array::Array;
 use crate::calib::schedule::Schedule;
@@ -90,13 +89,9 @@ impl LogSimulation<'_> {
         let mut steps = Vec::with_capacity(self.schedule.len());
         let (mut t0, mut static_index, mut spin_index) = (0.0, 0, 0);
         let positions = self.truth.positions_m(self.array);
-        // One gradient buffer for the effects' terms (the simulation does not use the gradients).
-        let largest = self.effects.iter().map(|a| a.effect.parameters(statics, spins)).max().unwrap_or(0);
-        let mut grad_buffer = vec![0.0; largest];
         for (si, step) in self.schedule.steps().iter().enumerate() {
             generator = generator.at_rate(&self.noise, step.sample_rate_hz);
             let w = step.omega_b_rad_s();
-            let w2 = w * w.transpose() - Matrix3::identity() * w.norm_squared();
             let up = step.up_b();
             let samples = step.samples();
             let mut log_step = LogStep {
@@ -116,31 +111,32 @@ impl LogSimulation<'_> {
                 });
                 log_step.t_s.push(t);
                 for (j, s) in self.truth.sensors.iter().enumerate() {
-                    let f = up * self.g_m_s2 + w2 * positions[j];
-                    let ctx = SampleContext {
-                        step: si,
+                    // The effects act on the physical sample (their generators), not through the
+                    // terms the diagnosis fits.
+                    let mut sample = TruthSample {
                         static_index: (!step.is_spin()).then_some(static_index),
                         spin_index: step.is_spin().then_some(spin_index),
                         t_s: t,
                         temp_delta_c: temp_delta.unwrap_or(0.0),
-                        u_m_s2: s.axis.dot(&f),
-                        axis: s.axis,
-                        position_m: positions[j],
                         up_b: up,
-                        w2,
+                        omega_b_rad_s: w,
                         g_m_s2: self.g_m_s2,
+                        position_m: positions[j],
+                        bias_m_s2: s.bias_m_s2,
+                        gain: 1.0,
+                        quadratic_per_m_s2: 0.0,
+                        cubic_per_m2_s4: 0.0,
                     };
-                    let mut e = 0.0;
                     for a in self.effects {
                         let m = a.effect.parameters(statics, spins);
                         let p = match a.effect.scope() {
                             Scope::PerAccelerometer => &a.values[j * m..(j + 1) * m],
                             Scope::Shared => &a.values[..m],
                         };
-                        e += a.effect.term(&ctx, p, &mut grad_buffer[..m]);
+                        a.effect.generate(&mut sample, p);
                     }
                     let k = s.scale_factor;
-                    let out = k * (s.bias_m_s2 + ctx.u_m_s2 + e + generator.next_m_s2(rng, j));
+                    let out = k * (sample.reading_m_s2(&s.axis) + generator.next_m_s2(rng, j));
                     log_step.outputs.push(quantize(out, k.abs() * self.noise.quantization_m_s2));
                 }
             }

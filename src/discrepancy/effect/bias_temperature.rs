@@ -21,6 +21,10 @@ impl Effect for BiasTemperature {
     fn needs_temperature(&self) -> bool {
         true
     }
+    fn generate(&self, sample: &mut super::TruthSample, p: &[f64]) {
+        // The bias follows the temperature.
+        sample.bias_m_s2 += p[0] * sample.temp_delta_c;
+    }
     fn term(&self, ctx: &SampleContext, p: &[f64], grad: &mut [f64]) -> f64 {
         grad[0] = ctx.temp_delta_c;
         p[0] * ctx.temp_delta_c

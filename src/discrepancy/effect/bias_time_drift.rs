@@ -18,6 +18,10 @@ impl Effect for BiasTimeDrift {
     fn unit(&self) -> &'static str {
         "m/s^2/s"
     }
+    fn generate(&self, sample: &mut super::TruthSample, p: &[f64]) {
+        // The bias drifts with time.
+        sample.bias_m_s2 += p[0] * sample.t_s;
+    }
     fn term(&self, ctx: &SampleContext, p: &[f64], grad: &mut [f64]) -> f64 {
         grad[0] = ctx.t_s;
         p[0] * ctx.t_s

@@ -37,6 +37,41 @@ pub struct SampleContext {
     pub g_m_s2: f64,
 }
 
+/// One sample of one accelerometer in the simulator's truth model: the physical motion and
+/// sensor that an effect's generator changes (rather than adding its fitted term), so that a
+/// test of the diagnosis does not take its truth from the term it fits.
+#[derive(Debug, Clone, Copy)]
+pub struct TruthSample {
+    /// Index of the step among the static steps (static steps only), or among the spins.
+    pub static_index: Option<usize>,
+    pub spin_index: Option<usize>,
+    pub t_s: f64,
+    pub temp_delta_c: f64,
+    /// The true up direction (unit, body axes), angular rate (rad/s) and gravity (m/s^2).
+    pub up_b: Vector3<f64>,
+    pub omega_b_rad_s: Vector3<f64>,
+    pub g_m_s2: f64,
+    /// The accelerometer's position relative to the point the array spins about, m.
+    pub position_m: Vector3<f64>,
+    /// Input-referred bias, m/s^2.
+    pub bias_m_s2: f64,
+    /// The sensor's response to its input `u`: `gain u + quadratic u^2 + cubic u^3`.
+    pub gain: f64,
+    pub quadratic_per_m_s2: f64,
+    pub cubic_per_m2_s4: f64,
+}
+
+impl TruthSample {
+    /// The input-referred reading (without noise) of an accelerometer with true axis `axis`:
+    /// `bias + response(axis . f)`, `f = g up + omega x (omega x r)`.
+    pub fn reading_m_s2(&self, axis: &Vector3<f64>) -> f64 {
+        let w = self.omega_b_rad_s;
+        let f = self.up_b * self.g_m_s2 + w.cross(&w.cross(&self.position_m));
+        let u = axis.dot(&f);
+        self.bias_m_s2 + self.gain * u + self.quadratic_per_m_s2 * u * u + self.cubic_per_m2_s4 * u * u * u
+    }
+}
+
 /// Who owns an effect's parameters.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Scope {
@@ -61,6 +96,10 @@ pub trait Effect: Sync + Send {
     }
     /// The term (m/s^2) for parameters `p`; `grad` (same length as `p`) receives its derivatives.
     fn term(&self, ctx: &SampleContext, p: &[f64], grad: &mut [f64]) -> f64;
+    /// The effect in the simulator's truth model: changes the physical sample (the motion or the
+    /// sensor) for parameters `p`, independently of [`Effect::term`] (which is its first-order
+    /// model).
+    fn generate(&self, sample: &mut TruthSample, p: &[f64]);
 }
 
 /// Every effect of the library with a deterministic term, by name.

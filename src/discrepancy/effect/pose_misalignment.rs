@@ -22,6 +22,14 @@ impl Effect for PoseMisalignment {
     fn unit(&self) -> &'static str {
         "rad"
     }
+    fn generate(&self, sample: &mut super::TruthSample, p: &[f64]) {
+        // The pose is rotated (exactly) by the rotation vector t1 (up x u) + t2 (up x w), which
+        // carries up toward u by t1 and toward w by t2.
+        let Some(i) = sample.static_index else { return };
+        let (u, w) = crate::sensor::misalignment::tilt_basis(&sample.up_b);
+        let rotation = sample.up_b.cross(&u) * p[2 * i] + sample.up_b.cross(&w) * p[2 * i + 1];
+        sample.up_b = nalgebra::Rotation3::from_scaled_axis(rotation) * sample.up_b;
+    }
     fn term(&self, ctx: &SampleContext, p: &[f64], grad: &mut [f64]) -> f64 {
         grad.iter_mut().for_each(|g| *g = 0.0);
         let Some(i) = ctx.static_index else { return 0.0 };

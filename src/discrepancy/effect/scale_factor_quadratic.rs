@@ -18,6 +18,9 @@ impl Effect for ScaleFactorQuadratic {
     fn unit(&self) -> &'static str {
         "1/(m/s^2)"
     }
+    fn generate(&self, sample: &mut super::TruthSample, p: &[f64]) {
+        sample.quadratic_per_m_s2 += p[0];
+    }
     fn term(&self, ctx: &SampleContext, p: &[f64], grad: &mut [f64]) -> f64 {
         let r = ctx.u_m_s2 * ctx.u_m_s2;
         grad[0] = r;

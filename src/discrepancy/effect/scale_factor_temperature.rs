@@ -22,6 +22,10 @@ impl Effect for ScaleFactorTemperature {
     fn needs_temperature(&self) -> bool {
         true
     }
+    fn generate(&self, sample: &mut super::TruthSample, p: &[f64]) {
+        // The sensitivity to the input follows the temperature.
+        sample.gain *= 1.0 + p[0] * sample.temp_delta_c;
+    }
     fn term(&self, ctx: &SampleContext, p: &[f64], grad: &mut [f64]) -> f64 {
         let r = ctx.temp_delta_c * ctx.u_m_s2;
         grad[0] = r;

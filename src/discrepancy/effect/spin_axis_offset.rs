@@ -20,6 +20,10 @@ impl Effect for SpinAxisOffset {
     fn unit(&self) -> &'static str {
         "m"
     }
+    fn generate(&self, sample: &mut super::TruthSample, p: &[f64]) {
+        // The table spins about the point d: every position is taken from there.
+        sample.position_m -= nalgebra::Vector3::new(p[0], p[1], p[2]);
+    }
     fn term(&self, ctx: &SampleContext, p: &[f64], grad: &mut [f64]) -> f64 {
         let wa = -(ctx.w2 * ctx.axis);
         grad.copy_from_slice(wa.as_slice());

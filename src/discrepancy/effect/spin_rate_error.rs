@@ -19,6 +19,10 @@ impl Effect for SpinRateError {
     fn unit(&self) -> &'static str {
         "1"
     }
+    fn generate(&self, sample: &mut super::TruthSample, p: &[f64]) {
+        // The table spins faster by the fraction p.
+        sample.omega_b_rad_s *= 1.0 + p[0];
+    }
     fn term(&self, ctx: &SampleContext, p: &[f64], grad: &mut [f64]) -> f64 {
         let c = ctx.axis.dot(&(ctx.w2 * ctx.position_m));
         grad[0] = 2.0 * (1.0 + p[0]) * c;
