@@ -70,6 +70,9 @@ def main(run_dir):
         fail("the seed in the Parquet metadata differs from run.json")
     if kv.get(b"gfcal:config", b"").decode() != run["config_text"]:
         fail("the config in the Parquet metadata differs from run.json")
+    schema_meta = pq.read_table(file_meta).schema.metadata or {}
+    if schema_meta.get(b"gfcal:seed", b"").decode() != str(run["seed"]):
+        fail("the Arrow schema's metadata (read_table(f).schema.metadata) has no gfcal:seed")
     summary = pl.read_csv(run_dir / "summary.csv")
     if summary.filter(pl.col("table") == "parameter").height == 0:
         fail("summary.csv has no parameter rows")

@@ -70,6 +70,14 @@ pub fn run(
         shard.1,
         out.display()
     );
+    // What would make part of the result meaningless, said before the work starts.
+    for cell in cfg.cells.iter().filter(|c| c.noise.is_zero()) {
+        eprintln!(
+            "gfcal: warning: cell {} has no noise: its Cramer-Rao sigmas are 0, so the summary's `ratio` and \
+             `coverage_95` are undefined for it (the recovered values and the drift are exact)",
+            cell.index
+        );
+    }
     let progress = Progress::new(Duration::from_secs_f64(interval_s));
     let outcome = gfcal::mc::run(&cfg, config, &opts, &progress).map_err(|e| match e {
         RunError::Output { .. } => anyhow::Error::new(InputError::Other(e.to_string())),
@@ -85,6 +93,19 @@ pub fn run(
     let summary = summarize_dir(&out).context("cannot summarize the run")?;
     write_summary(&out, &summary)?;
     print_summary(&cfg, &summary, outcome.complete);
+    no_estimate_is_a_failure(&out, &summary)
+}
+
+/// A run in which no trial produced an estimate has no result: exit 1, saying where to look.
+fn no_estimate_is_a_failure(dir: &Path, summary: &Summary) -> anyhow::Result<()> {
+    if summary.trials > 0 && !summary.parameters.is_empty() && summary.parameters.iter().all(|p| p.n == 0) {
+        anyhow::bail!(
+            "no trial of the {} in {} produced an estimate: every parameter is NaN (the trials table's `message` \
+             column says why each fit failed)",
+            summary.trials,
+            dir.display()
+        );
+    }
     Ok(())
 }
 
@@ -101,7 +122,7 @@ pub fn summarize(dir: &Path) -> anyhow::Result<()> {
     let summary = summarize_dir(dir).context("cannot summarize the run")?;
     write_summary(dir, &summary)?;
     print_summary(&cfg, &summary, summary.trials == cfg.total_trials());
-    Ok(())
+    no_estimate_is_a_failure(dir, &summary)
 }
 
 fn write_summary(dir: &Path, summary: &Summary) -> anyhow::Result<()> {

@@ -245,13 +245,19 @@ pub fn write_part(path: &Path, batch: &RecordBatch, metadata: &[(String, String)
         .collect();
     let mut kv: Vec<KeyValue> = metadata.iter().map(|(k, v)| KeyValue::new(k.clone(), v.clone())).collect();
     kv.push(KeyValue::new("gfcal:units".to_string(), serde_json::to_string(&units).unwrap_or_default()));
+    // The same keys in the Arrow schema's metadata, so that readers that show the schema
+    // (`pyarrow.parquet.read_table(f).schema.metadata`, Polars) see the provenance too.
+    let schema_metadata: HashMap<String, String> =
+        kv.iter().map(|k| (k.key.clone(), k.value.clone().unwrap_or_default())).collect();
+    let schema = Arc::new(batch.schema().as_ref().clone().with_metadata(schema_metadata));
+    let batch = batch.clone().with_schema(schema.clone()).map_err(|e| batch_error(&shown, e))?;
     let zstd = ZstdLevel::try_new(3).map_err(|e| batch_error(&shown, e))?;
     let props =
         WriterProperties::builder().set_compression(Compression::ZSTD(zstd)).set_key_value_metadata(Some(kv)).build();
     let result = (|| {
         let file = File::create(&tmp).map_err(io)?;
-        let mut writer = ArrowWriter::try_new(file, batch.schema(), Some(props)).map_err(|e| batch_error(&shown, e))?;
-        writer.write(batch).map_err(|e| batch_error(&shown, e))?;
+        let mut writer = ArrowWriter::try_new(file, schema, Some(props)).map_err(|e| batch_error(&shown, e))?;
+        writer.write(&batch).map_err(|e| batch_error(&shown, e))?;
         let file = writer.into_inner().map_err(|e| batch_error(&shown, e))?;
         file.sync_all().map_err(io)?;
         std::fs::rename(&tmp, path).map_err(io)

@@ -327,6 +327,18 @@ fn an_output_folder_with_another_run_is_refused_unless_forced() {
     assert!(forced.status.success());
     let meta = read_metadata(&out.join("trials/part-000000.parquet")).unwrap();
     assert_eq!(meta["gfcal:seed"], "8");
+    // The provenance is in the Arrow schema's metadata too (what pyarrow's read_table and Polars
+    // show), for both tables.
+    for sub in ["trials", "parameters"] {
+        let file = std::fs::File::open(out.join(sub).join("part-000000.parquet")).unwrap();
+        let schema =
+            parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file).unwrap().schema().clone();
+        assert_eq!(schema.metadata().get("gfcal:seed").map(String::as_str), Some("8"), "{sub}");
+        assert!(
+            schema.metadata().contains_key("gfcal:config") && schema.metadata().contains_key("gfcal:units"),
+            "{sub}"
+        );
+    }
 }
 
 #[test]
@@ -562,4 +574,57 @@ fn a_fit_that_leaves_the_small_error_region_is_not_called_converged() {
     if !r.converged {
         assert!(r.message.contains("small-error region"), "{}", r.message);
     }
+}
+
+/// Issue 13: a run in which every fit fails (a schedule of two static poses cannot identify the
+/// locations) writes its tables and summary but exits 1 saying no trial produced an estimate; a
+/// run with no noise says before it starts that `ratio` and `coverage_95` are undefined.
+#[test]
+fn a_run_without_any_estimate_fails_and_a_noise_free_run_says_what_is_undefined() {
+    let text = r#"
+name = "allfail"
+seed = 7
+trials_per_cell = 10
+[errors]
+bias_mg = { dist = "normal", sigma = 1.0 }
+[noise]
+white_density_ug_per_sqrt_hz = 50.0
+[schedule]
+[[schedule.step]]
+kind = "static"
+up = [0.0, 0.0, 1.0]
+duration_s = 1.0
+sample_rate_hz = 100.0
+[[schedule.step]]
+kind = "static"
+up = [0.0, 0.0, -1.0]
+duration_s = 1.0
+sample_rate_hz = 100.0
+[trajectory]
+kind = "rest"
+[navigation]
+step_s = 0.05
+horizons_s = [1.0]
+compensations = ["estimated"]
+"#;
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(dir.path(), "allfail.toml", text);
+    let out = dir.path().join("out");
+    let o = gfcal().args(["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("no trial of the 10") && err.contains("produced an estimate"), "{err}");
+    assert!(out.join("summary.csv").exists(), "the summary is still written");
+
+    let quiet = text.replace("white_density_ug_per_sqrt_hz = 50.0", "").replace(
+        "[schedule]\n[[schedule.step]]\nkind = \"static\"\nup = [0.0, 0.0, 1.0]\nduration_s = 1.0\nsample_rate_hz = 100.0\n[[schedule.step]]\nkind = \"static\"\nup = [0.0, 0.0, -1.0]\nduration_s = 1.0\nsample_rate_hz = 100.0\n",
+        "[schedule]\npreset = \"hung_lee_2006\"\n",
+    );
+    assert!(quiet.contains("preset"), "{quiet}");
+    let cfg = write_config(dir.path(), "quiet.toml", &quiet);
+    let out = dir.path().join("quiet");
+    let o = gfcal().args(["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("has no noise") && err.contains("`ratio`") && err.contains("undefined"), "{err}");
 }
