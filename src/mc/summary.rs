@@ -132,33 +132,6 @@ impl Histogram {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::Histogram;
-
-    /// Quantiles within 0.5% at any magnitude (the histogram used to end at 1e10, so a median of
-    /// 6.87e10 came out as 9.977e9), with zeros and diverged values at the ends.
-    #[test]
-    fn quantiles_are_right_at_any_magnitude() {
-        for scale in [1e-300, 1e-12, 1.0, 6.87e10, 1e200] {
-            let mut h = Histogram::new(String::new());
-            for i in 1..=1001 {
-                h.add(scale * i as f64);
-            }
-            let median = h.quantile(0.5);
-            assert!((median / (scale * 501.0) - 1.0).abs() < 0.005, "{scale}: median {median}");
-            let p95 = h.quantile(0.95);
-            assert!((p95 / (scale * 951.0) - 1.0).abs() < 0.005, "{scale}: p95 {p95}");
-        }
-        let mut h = Histogram::new(String::new());
-        for v in [0.0, 0.0, 3.0, f64::INFINITY, f64::NAN] {
-            h.add(v);
-        }
-        assert_eq!(h.quantile(0.5), 0.0);
-        assert!(h.quantile(1.0).is_infinite());
-    }
-}
-
 /// Reads every part of `dir/trials` and `dir/parameters`.
 pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
     let mut params: BTreeMap<(u32, String), Acc> = BTreeMap::new();
@@ -314,4 +287,31 @@ pub fn summary_csv(s: &Summary) -> String {
         ));
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Histogram;
+
+    /// Quantiles within 0.5% at any magnitude (the histogram used to end at 1e10, so a median of
+    /// 6.87e10 came out as 9.977e9), with zeros and diverged values at the ends.
+    #[test]
+    fn quantiles_are_right_at_any_magnitude() {
+        for scale in [1e-300, 1e-12, 1.0, 6.87e10, 1e200] {
+            let mut h = Histogram::new(String::new());
+            for i in 1..=1001 {
+                h.add(scale * i as f64);
+            }
+            let median = h.quantile(0.5);
+            assert!((median / (scale * 501.0) - 1.0).abs() < 0.005, "{scale}: median {median}");
+            let p95 = h.quantile(0.95);
+            assert!((p95 / (scale * 951.0) - 1.0).abs() < 0.005, "{scale}: p95 {p95}");
+        }
+        let mut h = Histogram::new(String::new());
+        for v in [0.0, 0.0, 3.0, f64::INFINITY, f64::NAN] {
+            h.add(v);
+        }
+        assert_eq!(h.quantile(0.5), 0.0);
+        assert!(h.quantile(1.0).is_infinite());
+    }
 }
