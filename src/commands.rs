@@ -25,7 +25,8 @@ struct Loaded {
 }
 
 fn load(path: &Path) -> anyhow::Result<Loaded> {
-    let cfg = CalibrationConfig::load(path).map_err(InputError::Config)?;
+    let cfg = CalibrationConfig::load(path)
+        .map_err(|e| crate::check::input_error(e, path, crate::check::ConfigKind::Calibration))?;
     let density_m_s2_per_sqrt_hz = cfg.white_density_m_s2_per_sqrt_hz();
     if density_m_s2_per_sqrt_hz <= 0.0 {
         return Err(InputError::Other(format!(
@@ -271,7 +272,8 @@ pub fn paper(out: &Path, trials: usize, seed: u64, density_ug: f64) -> anyhow::R
 pub fn simulate_log(config: &Path, out: &Path) -> anyhow::Result<()> {
     use gfcal::config::simulate_log::SimulateLogConfig;
     use gfcal::discrepancy::simulate::LogSimulation;
-    let cfg = SimulateLogConfig::load(config).map_err(InputError::Config)?;
+    let cfg = SimulateLogConfig::load(config)
+        .map_err(|e| crate::check::input_error(e, config, crate::check::ConfigKind::SimulateLog))?;
     let sim = LogSimulation {
         array: &cfg.array,
         truth: &cfg.errors.truth,

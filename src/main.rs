@@ -24,6 +24,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Validate a config without running it: says which command(s) it is for and what it holds,
+    /// or what is wrong with it (exit 2).
+    Check {
+        /// Any gfcal config (run, drift, identify/design, simulate-log) or array file.
+        config: PathBuf,
+    },
     /// Navigation drift against horizon, compensating with nominal and with true parameters.
     Drift {
         /// Drift config (TOML), e.g. configs/paper_manoeuvre.toml.
@@ -179,6 +185,8 @@ enum Command {
     },
 }
 
+mod check;
+use check::ConfigKind;
 mod commands;
 mod hardware;
 mod progress;
@@ -213,6 +221,7 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
+        Command::Check { config } => check::run(&config),
         Command::Drift { config, csv } => drift(&config, csv.as_deref()),
         Command::Identify { config } => commands::identify(&config),
         Command::Run { config, out, resume, force, shard, threads, progress_interval_s } => {
@@ -265,7 +274,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
 }
 
 fn drift(config_path: &std::path::Path, csv: Option<&std::path::Path>) -> anyhow::Result<()> {
-    let cfg = DriftConfig::load(config_path).map_err(InputError::Config)?;
+    let cfg = DriftConfig::load(config_path).map_err(|e| check::input_error(e, config_path, ConfigKind::Drift))?;
     let nav = &cfg.navigation;
     let setup = DriftSetup {
         array: &cfg.array,

@@ -49,7 +49,8 @@ pub fn run(
     threads: Option<usize>,
     interval_s: f64,
 ) -> anyhow::Result<()> {
-    let cfg = McConfig::load(config).map_err(InputError::Config)?;
+    let cfg =
+        McConfig::load(config).map_err(|e| crate::check::input_error(e, config, crate::check::ConfigKind::Run))?;
     let shard = shard(shard_flag)?;
     if threads == Some(0) {
         return Err(InputError::Other("--threads must be at least 1".into()).into());

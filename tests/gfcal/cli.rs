@@ -416,3 +416,34 @@ fn bad_logs_and_short_logs_exit_2() {
     );
     assert!(!dir.path().join("x.csv").exists());
 }
+
+/// Issue 13: `gfcal check` validates any config without running it and says whose it is; a
+/// command given another command's config says so instead of failing on its first unknown key
+/// (`run configs/paper_manoeuvre.toml` said "expected struct DistEntry in errors.bias_mg").
+#[test]
+fn check_names_the_command_of_every_shipped_config_and_commands_name_the_right_one() {
+    for (file, command) in [
+        ("configs/quickstart.toml", "`gfcal run`"),
+        ("configs/paper_manoeuvre.toml", "`gfcal drift`"),
+        ("configs/hung_lee_2006_design.toml", "`gfcal identify / gfcal design`"),
+        ("configs/discrepancy_example.toml", "`gfcal simulate-log`"),
+        ("configs/arrays/mimu4444_corners.toml", "an array file"),
+    ] {
+        let o = gfcal(&["check", file]);
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{file}: {}", stderr(&o));
+        assert!(out.contains(file) && out.contains(command), "{file}: {out}");
+    }
+    let o = gfcal(&["run", "configs/paper_manoeuvre.toml", "--out", "/nonexistent/never-written"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("a config for `gfcal drift`, not for `gfcal run`"), "{}", stderr(&o));
+    let o = gfcal(&["drift", "configs/quickstart.toml"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("a config for `gfcal run`, not for `gfcal drift`"), "{}", stderr(&o));
+    // A broken config: exit 2 naming the file and the key, nothing run.
+    let dir = tempfile::tempdir().unwrap();
+    let bad = config(dir.path(), &paper_with("[navigation]", "[navigation]\nstep_s = -1.0\n"));
+    let o = gfcal(&["check", bad.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains(bad.to_str().unwrap()) && stderr(&o).contains("step_s"), "{}", stderr(&o));
+}
