@@ -294,6 +294,16 @@ pub fn read_batches(path: &Path) -> Result<Vec<RecordBatch>, ParquetIoError> {
     reader.collect::<Result<Vec<_>, _>>().map_err(|e| batch_error(&shown, e))
 }
 
+/// Whether `path` is a whole Parquet file of `rows` rows: its footer reads (a file truncated by a
+/// crash has none) and its row count is the expected one. Reads the footer only.
+pub fn is_whole_part(path: &Path, rows: u64) -> bool {
+    let Ok(file) = File::open(path) else { return false };
+    match ParquetRecordBatchReaderBuilder::try_new(file) {
+        Ok(b) => b.metadata().file_metadata().num_rows() == rows as i64,
+        Err(_) => false,
+    }
+}
+
 /// The key-value metadata of a Parquet file.
 pub fn read_metadata(path: &Path) -> Result<HashMap<String, String>, ParquetIoError> {
     let shown = path.display().to_string();

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 
 use super::config::McConfig;
 use super::trial::{Prepared, TrialRecord, run_trial};
-use crate::io::parquet::{ParquetIoError, parameters_batch, trials_batch, write_part};
+use crate::io::parquet::{ParquetIoError, is_whole_part, parameters_batch, trials_batch, write_part};
 
 /// Receives progress; must not block (called from worker threads).
 pub trait Observer: Sync {
@@ -189,10 +189,19 @@ pub fn run(
     }
     let parts: Vec<u64> = (0..cfg.parts()).filter(|p| p % shards == shard).collect();
     let part_trials = |p: u64| (p * cfg.trials_per_part)..((p + 1) * cfg.trials_per_part).min(cfg.total_trials());
-    let done = |p: u64| part_path(&opts.out, "trials", p).exists() && part_path(&opts.out, "parameters", p).exists();
-    let todo: Vec<u64> = parts.iter().copied().filter(|&p| !done(p)).collect();
+    // A part is done when both its files are whole (footer and row count: a file truncated by a
+    // crash is redone, not counted).
+    let params_per_trial = cfg.cells.first().map_or(0, |c| c.layout.len() as u64);
+    let done = |p: u64| {
+        let n = part_trials(p).end - part_trials(p).start;
+        is_whole_part(&part_path(&opts.out, "trials", p), n)
+            && is_whole_part(&part_path(&opts.out, "parameters", p), n * params_per_trial)
+    };
+    let whole: Vec<bool> = parts.iter().map(|&p| done(p)).collect();
+    let todo: Vec<u64> = parts.iter().zip(&whole).filter(|(_, w)| !**w).map(|(&p, _)| p).collect();
     let total: u64 = parts.iter().map(|&p| part_trials(p).end - part_trials(p).start).sum();
-    let already: u64 = parts.iter().filter(|&&p| done(p)).map(|&p| part_trials(p).end - part_trials(p).start).sum();
+    let already: u64 =
+        parts.iter().zip(&whole).filter(|(_, w)| **w).map(|(&p, _)| part_trials(p).end - part_trials(p).start).sum();
     let prepared: Vec<Prepared> = cfg.cells.iter().map(Prepared::new).collect();
     let mut builder = rayon::ThreadPoolBuilder::new();
     if let Some(t) = opts.threads {
