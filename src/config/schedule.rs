@@ -77,6 +77,14 @@ impl ScheduleSection {
             (Some(_), false) => Err(Bad::new("schedule", "give either `preset` or [[schedule.step]], not both")),
             (None, true) => Err(Bad::new("schedule", "the schedule has no steps: give `preset` or [[schedule.step]]")),
             (Some(p), true) => {
+                if duration_s * rate_hz < 1.0 {
+                    return Err(Bad::new(
+                        "schedule.step_duration_s",
+                        format!(
+                            "{duration_s} s at {rate_hz} Hz is less than one sample (it would be raised to one, silently)"
+                        ),
+                    ));
+                }
                 let base = Schedule::hung_lee_2006(array, spin_rate, duration_s, rate_hz)
                     .map_err(|e| Bad::new("schedule", e.to_string()))?;
                 match p.as_str() {
@@ -97,6 +105,12 @@ impl ScheduleSection {
                     let key = |k: &str| format!("schedule.step[{i}].{k}");
                     let d = positive(&key("duration_s"), e.duration_s.unwrap_or(duration_s))?;
                     let f = positive(&key("sample_rate_hz"), e.sample_rate_hz.unwrap_or(rate_hz))?;
+                    if d * f < 1.0 {
+                        return Err(Bad::new(
+                            key("duration_s"),
+                            format!("{d} s at {f} Hz is less than one sample (it would be raised to one, silently)"),
+                        ));
+                    }
                     let dir = |name: &str, v: Option<[f64; 3]>| -> Result<Vector3<f64>, Bad> {
                         let v = vec3(
                             &key(name),

@@ -669,6 +669,7 @@ fn build_cell(f: &McFile, path: &Path, index: usize, factors: Vec<(String, Facto
     }
     horizons_s.sort_by(f64::total_cmp);
     horizons_s.dedup();
+    crate::config::trajectory::check_navigation_work(step_s, &horizons_s).map_err(bad)?;
     let mut compensations =
         nav.compensations.clone().unwrap_or_else(|| vec![Compensation::Nominal, Compensation::Estimated]);
     let mut seen = Vec::new();

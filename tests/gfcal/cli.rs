@@ -447,3 +447,23 @@ fn check_names_the_command_of_every_shipped_config_and_commands_name_the_right_o
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains(bad.to_str().unwrap()) && stderr(&o).contains("step_s"), "{}", stderr(&o));
 }
+
+/// Issue 13: configs that cannot finish or that would be adjusted silently are refused with the
+/// key and the estimate: horizons of 1e9 s, a step of 1e-12 s, a step longer than every horizon,
+/// a step duration shorter than one sample.
+#[test]
+fn endless_and_silently_adjusted_configs_are_refused() {
+    for (from, to, words) in [
+        (
+            "horizons_s = [0.5, 1, 2, 5, 10]",
+            "horizons_s = [1e9]",
+            &["navigation.horizons_s", "steps per navigation"][..],
+        ),
+        ("step_s = 0.001", "step_s = 1e-12", &["navigation.horizons_s", "steps per navigation"][..]),
+        ("step_s = 0.001", "step_s = 20.0", &["navigation.step_s", "longer than every horizon"][..]),
+    ] {
+        refused(&paper_with(from, to), words);
+    }
+    let design = design_with("step_duration_s = 1.0", "step_duration_s = 0.001");
+    refused_cmd("identify", &design, &["schedule.step_duration_s", "less than one sample"]);
+}
