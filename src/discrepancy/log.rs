@@ -12,12 +12,13 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use arrow_array::{Array, ArrayRef, Float64Array, Int64Array, RecordBatch};
+use arrow_array::{ArrayRef, Float64Array, Int64Array, RecordBatch};
 use arrow_schema::{DataType, Field, Schema};
 use nalgebra::Vector3;
 
 use crate::calib::measure::{Measurements, StepStats};
 use crate::calib::schedule::{Schedule, Step};
+use crate::io::table::{Table, TableError};
 
 /// One step of a log.
 #[derive(Debug, Clone, PartialEq)]
@@ -57,7 +58,7 @@ pub enum LogError {
     MissingColumns { path: PathBuf, missing: Vec<String> },
     #[error("{}: unknown column(s): {} (expected step, t_s, up_*, omega_*_rad_s, temp_c, s1..sN)", path.display(), unknown.join(", "))]
     UnknownColumns { path: PathBuf, unknown: Vec<String> },
-    #[error("{}: row {row}, column `{column}`: {problem}", path.display())]
+    #[error("{}: data row {row}, column `{column}`: {problem}", path.display())]
     Value { path: PathBuf, row: usize, column: String, problem: String },
     #[error("{}: step {step}: {problem}", path.display())]
     Step { path: PathBuf, step: i64, problem: String },
@@ -77,71 +78,26 @@ struct Columns {
     row_base: usize,
 }
 
-fn read_csv(path: &Path) -> Result<Columns, LogError> {
-    let text = std::fs::read_to_string(path).map_err(|source| LogError::Io { path: path.to_path_buf(), source })?;
-    let mut lines = text.lines();
-    let header = lines
-        .next()
-        .ok_or_else(|| LogError::Format { path: path.to_path_buf(), problem: "the file is empty".into() })?;
-    let names: Vec<String> = header.split(',').map(|s| s.trim().to_string()).collect();
-    let mut data = vec![Vec::new(); names.len()];
-    for (i, line) in lines.enumerate() {
-        let row = i + 2;
-        if line.trim().is_empty() {
-            continue;
-        }
-        let fields: Vec<&str> = line.split(',').collect();
-        if fields.len() != names.len() {
+impl CalibrationLog {
+    /// Reads and checks a log (`.parquet`, or CSV otherwise) of an array of `n` accelerometers.
+    ///
+    /// Read through `io::table` (the `csv` crate; Parquet of every codec, numeric columns of any
+    /// width, pandas' index column ignored); rows are counted as data rows in both formats.
+    pub fn read(path: &Path, n: usize) -> Result<Self, LogError> {
+        let table = Table::read(path).map_err(|e| match e {
+            TableError::Io { path, source } => LogError::Io { path, source },
+            TableError::Value { path, row, column, problem } => LogError::Value { path, row, column, problem },
+            other => LogError::Format { path: path.to_path_buf(), problem: other.to_string() },
+        })?;
+        if let Some((k, row)) = table.first_null_row.iter().enumerate().find_map(|(k, r)| r.map(|r| (k, r))) {
             return Err(LogError::Value {
                 path: path.to_path_buf(),
                 row,
-                column: "*".into(),
-                problem: format!("{} fields, the header has {}", fields.len(), names.len()),
+                column: table.names[k].clone(),
+                problem: "missing value (null)".into(),
             });
         }
-        for (k, f) in fields.iter().enumerate() {
-            let v: f64 = f.trim().parse().map_err(|_| LogError::Value {
-                path: path.to_path_buf(),
-                row,
-                column: names[k].clone(),
-                problem: format!("`{}` is not a number", f.trim()),
-            })?;
-            data[k].push(v);
-        }
-    }
-    Ok(Columns { names, data, row_base: 2 })
-}
-
-fn read_parquet(path: &Path) -> Result<Columns, LogError> {
-    let batches = crate::io::parquet::read_batches(path)
-        .map_err(|e| LogError::Format { path: path.to_path_buf(), problem: e.to_string() })?;
-    let Some(first) = batches.first() else {
-        return Err(LogError::Format { path: path.to_path_buf(), problem: "the file has no rows".into() });
-    };
-    let names: Vec<String> = first.schema().fields().iter().map(|f| f.name().clone()).collect();
-    let mut data = vec![Vec::new(); names.len()];
-    for b in &batches {
-        for (k, col) in b.columns().iter().enumerate() {
-            if let Some(a) = col.as_any().downcast_ref::<Float64Array>() {
-                data[k].extend((0..a.len()).map(|i| if a.is_null(i) { f64::NAN } else { a.value(i) }));
-            } else if let Some(a) = col.as_any().downcast_ref::<Int64Array>() {
-                data[k].extend((0..a.len()).map(|i| if a.is_null(i) { f64::NAN } else { a.value(i) as f64 }));
-            } else {
-                return Err(LogError::Format {
-                    path: path.to_path_buf(),
-                    problem: format!("column `{}` is {}, expected numbers", names[k], col.data_type()),
-                });
-            }
-        }
-    }
-    Ok(Columns { names, data, row_base: 1 })
-}
-
-impl CalibrationLog {
-    /// Reads and checks a log (`.parquet`, or CSV otherwise) of an array of `n` accelerometers.
-    pub fn read(path: &Path, n: usize) -> Result<Self, LogError> {
-        let cols = if path.extension().is_some_and(|e| e == "parquet") { read_parquet(path)? } else { read_csv(path)? };
-        Self::from_columns(path, cols, n)
+        Self::from_columns(path, Columns { names: table.names, data: table.data, row_base: 1 }, n)
     }
 
     fn from_columns(path: &Path, cols: Columns, n: usize) -> Result<Self, LogError> {
@@ -219,7 +175,7 @@ impl CalibrationLog {
                         path: p(),
                         step,
                         problem: format!(
-                            "comes after step {} (row {row}): steps must be in time order, each step's rows together",
+                            "comes after step {} (data row {row}): steps must be in time order, each step's rows together",
                             prev.step
                         ),
                     });
@@ -228,7 +184,7 @@ impl CalibrationLog {
                     return Err(LogError::Step {
                         path: p(),
                         step,
-                        problem: format!("the up direction at row {row} is not a direction"),
+                        problem: format!("the up direction at data row {row} is not a direction"),
                     });
                 }
                 if w.norm() > 0.0 && (up.normalize().dot(&w.normalize())).abs() < 1.0 - 1e-6 {
@@ -236,7 +192,7 @@ impl CalibrationLog {
                         path: p(),
                         step,
                         problem: format!(
-                            "the spin axis at row {row} is not vertical (omega not along up); the model needs the rate table's axis vertical"
+                            "the spin axis at data row {row} is not vertical (omega not along up); the model needs the rate table's axis vertical"
                         ),
                     });
                 }
@@ -247,7 +203,7 @@ impl CalibrationLog {
                 return Err(LogError::Step {
                     path: p(),
                     step,
-                    problem: format!("the commanded up or rate changes within the step (row {row})"),
+                    problem: format!("the commanded up or rate changes within the step (data row {row})"),
                 });
             }
             s.t_s.push(t);

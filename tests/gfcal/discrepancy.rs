@@ -203,17 +203,17 @@ fn bad_logs_are_refused_with_what_and_where() {
     let m = msg(err(&ok.replacen(",s6", ",s6,temp", 1).replace("5,6\n", "5,6,1\n")));
     assert!(m.contains("unknown column(s): temp"), "{m}");
     let m = msg(err(&ok.replacen("1,2,3,4,5,6\n", "1,2,NaN,4,5,6\n", 1)));
-    assert!(m.contains("row 2, column `s3`") && m.contains("not a finite number"), "{m}");
+    assert!(m.contains("data row 1, column `s3`") && m.contains("not a finite number"), "{m}");
     let m = msg(err(&ok.replacen("1,2,3,4,5,6\n", "1,2,x,4,5,6\n", 1)));
-    assert!(m.contains("row 2, column `s3`: `x` is not a number"), "{m}");
+    assert!(m.contains("data row 1, column `s3`: `x` is not a number"), "{m}");
     let m = msg(CalibrationLog::read(&write(dir.path(), "bad.csv", &ok), 9).unwrap_err());
     assert!(m.contains("the log has 6 outputs (s1..s6) but the array has 9"), "{m}");
     let back = header(6) + &row(2, 0.0, z, [0.0; 3]) + &row(1, 0.01, z, [0.0; 3]);
     assert!(msg(err(&back)).contains("step 1: comes after step 2"));
     let again = header(6) + &row(1, 0.0, z, [0.0; 3]) + &row(2, 0.01, z, [0.0; 3]) + &row(1, 0.02, z, [0.0; 3]);
-    assert!(msg(err(&again)).contains("step 1: comes after step 2 (row 4)"));
+    assert!(msg(err(&again)).contains("step 1: comes after step 2 (data row 3)"));
     let changes = header(6) + &row(1, 0.0, z, [0.0; 3]) + &row(1, 0.01, [1.0, 0.0, 0.0], [0.0; 3]);
-    assert!(msg(err(&changes)).contains("changes within the step (row 3)"));
+    assert!(msg(err(&changes)).contains("changes within the step (data row 2)"));
     let tilted = header(6) + &row(1, 0.0, z, [6.0, 0.0, 0.0]);
     assert!(msg(err(&tilted)).contains("not vertical"));
     let time = header(6) + &row(1, 0.0, z, [0.0; 3]) + &row(1, 0.0, z, [0.0; 3]);
@@ -227,7 +227,7 @@ fn bad_logs_are_refused_with_what_and_where() {
     let pq = dir.path().join("nan.parquet");
     log.write(&pq).unwrap();
     let m = msg(CalibrationLog::read(&pq, 6).unwrap_err());
-    assert!(m.contains("nan.parquet: row 2002, column `s2`: NaN is not a finite number"), "{m}");
+    assert!(m.contains("nan.parquet: data row 2002, column `s2`: NaN is not a finite number"), "{m}");
 }
 
 #[test]
@@ -473,4 +473,74 @@ fn every_effects_generator_agrees_with_its_term_to_first_order() {
             );
         }
     }
+}
+
+/// Issue 13: logs as labs write them. The same log as Parquet with every codec pyarrow writes
+/// (none, snappy, gzip, lz4, lz4_raw, brotli, zstd), `step` as Int32, outputs as Float32 and a
+/// pandas index column; and as CSV with a byte-order mark, CRLF line ends and quoted headers. All
+/// read as the original (outputs within Float32 precision).
+#[test]
+fn logs_as_labs_write_them_are_read() {
+    use arrow_array::{ArrayRef, Float32Array, Float64Array, Int32Array, Int64Array, RecordBatch};
+    use parquet::arrow::ArrowWriter;
+    use parquet::basic::{BrotliLevel, Compression, GzipLevel, ZstdLevel};
+    use parquet::file::properties::WriterProperties;
+    use std::sync::Arc;
+
+    let cfg = example();
+    let log = simulate(&cfg, &[], white(50.0), None, 3);
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("log.csv");
+    log.write(&csv).unwrap();
+    let table = gfcal::io::table::Table::read(&csv).unwrap();
+    let rows = table.rows();
+    let columns: Vec<(String, ArrayRef)> = std::iter::once((
+        "__index_level_0__".to_string(),
+        Arc::new(Int64Array::from_iter_values(0..rows as i64)) as ArrayRef,
+    ))
+    .chain(table.names.iter().zip(&table.data).map(|(name, data)| {
+        let array: ArrayRef = if name == "step" {
+            Arc::new(Int32Array::from_iter_values(data.iter().map(|v| *v as i32)))
+        } else if name.starts_with('s') {
+            Arc::new(Float32Array::from_iter_values(data.iter().map(|v| *v as f32)))
+        } else {
+            Arc::new(Float64Array::from(data.clone()))
+        };
+        (name.clone(), array)
+    }))
+    .collect();
+    let batch = RecordBatch::try_from_iter(columns).unwrap();
+    let same = |read: &CalibrationLog, what: &str| {
+        assert_eq!(read.steps.len(), log.steps.len(), "{what}");
+        for (a, b) in read.steps.iter().zip(&log.steps) {
+            assert_eq!(a.step, b.step, "{what}");
+            assert_eq!(a.t_s, b.t_s, "{what}");
+            for (x, y) in a.outputs.iter().zip(&b.outputs) {
+                assert!((x - y).abs() <= 1e-6 * y.abs().max(1.0), "{what}: {x} against {y}");
+            }
+        }
+    };
+    for (name, codec) in [
+        ("none", Compression::UNCOMPRESSED),
+        ("snappy", Compression::SNAPPY),
+        ("gzip", Compression::GZIP(GzipLevel::default())),
+        ("lz4", Compression::LZ4),
+        ("lz4_raw", Compression::LZ4_RAW),
+        ("brotli", Compression::BROTLI(BrotliLevel::default())),
+        ("zstd", Compression::ZSTD(ZstdLevel::default())),
+    ] {
+        let path = dir.path().join(format!("log_{name}.parquet"));
+        let props = WriterProperties::builder().set_compression(codec).build();
+        let mut w = ArrowWriter::try_new(std::fs::File::create(&path).unwrap(), batch.schema(), Some(props)).unwrap();
+        w.write(&batch).unwrap();
+        w.close().unwrap();
+        same(&CalibrationLog::read(&path, 6).unwrap_or_else(|e| panic!("{name}: {e}")), name);
+    }
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap().split(',').map(|h| format!("\"{h}\"")).collect::<Vec<_>>().join(",");
+    let lab = format!("\u{feff}{header}\r\n") + &lines.map(|l| format!("{l}\r\n")).collect::<String>();
+    let lab_path = dir.path().join("lab.csv");
+    std::fs::write(&lab_path, lab).unwrap();
+    same(&CalibrationLog::read(&lab_path, 6).unwrap(), "CSV with BOM, CRLF and quoted headers");
 }
