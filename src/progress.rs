@@ -44,9 +44,15 @@ impl Progress {
         let run = done.saturating_sub(state.already);
         let secs = state.started.elapsed().as_secs_f64().max(1e-9);
         let rate = run as f64 / secs;
-        let eta = if rate > 0.0 { (total.saturating_sub(done)) as f64 / rate } else { f64::NAN };
+        let left = total.saturating_sub(done);
+        // No ETA until this process has a rate (nothing run yet, e.g. resuming a finished run).
+        let eta = match (left, rate > 0.0) {
+            (0, _) => "ETA 0 s".to_string(),
+            (_, true) => format!("ETA {:.0} s", left as f64 / rate),
+            (_, false) => "ETA unknown".to_string(),
+        };
         eprintln!(
-            "gfcal: {done}/{total} trials ({:.1}%), {rate:.0} trials/s, elapsed {:.0} s, ETA {eta:.0} s",
+            "gfcal: {done}/{total} trials ({:.1}%), {rate:.0} trials/s, elapsed {:.0} s, {eta}",
             100.0 * done as f64 / total.max(1) as f64,
             secs
         );

@@ -123,7 +123,12 @@ fn prepare_output(cfg: &McConfig, config_path: &Path, opts: &RunOptions) -> Resu
                 previous["config_path"].as_str().unwrap_or("?")
             )));
         } else if !(opts.resume || sharded) {
-            return Err(output("holds this run already; use --resume to finish it or --force to start over".into()));
+            let finished = previous["finished"].as_str().is_some();
+            return Err(output(if finished {
+                "holds this run, finished; `gfcal summarize` recomputes its summary, --force starts it over".into()
+            } else {
+                "holds this run, unfinished; use --resume to finish it or --force to start over".into()
+            }));
         } else {
             return Ok(previous["started"].as_str().map(String::from).unwrap_or_else(now));
         }

@@ -654,3 +654,22 @@ fn resume_redoes_a_truncated_part() {
     assert!(err.contains("2 parts written"), "the two damaged parts are redone: {err}");
     same_tables(&clean, &out);
 }
+
+/// Issue 13's messages: re-running a finished run says it is finished (not "use --resume to
+/// finish it"), and resuming it prints no "ETA NaN".
+#[test]
+fn a_finished_run_says_so_and_resuming_it_has_no_nan_eta() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(dir.path(), "small.toml", SMALL);
+    let out = dir.path().join("out");
+    let args = ["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap(), "--progress-interval-s", "0.001"];
+    assert!(gfcal().args(args).output().unwrap().status.success());
+    let again = gfcal().args(args).output().unwrap();
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert_eq!(again.status.code(), Some(2), "{err}");
+    assert!(err.contains("finished") && err.contains("summarize") && !err.contains("to finish it"), "{err}");
+    let resumed = gfcal().args(args).arg("--resume").output().unwrap();
+    let err = String::from_utf8_lossy(&resumed.stderr);
+    assert!(resumed.status.success(), "{err}");
+    assert!(!err.contains("NaN"), "{err}");
+}
