@@ -285,7 +285,7 @@ pub fn simulate_log(config: &Path, out: &Path) -> anyhow::Result<()> {
     };
     sim.check().map_err(|e| InputError::Other(format!("{}: key `effects`: {e}", config.display())))?;
     let log = sim.run(&mut gfcal::rng::trial_rng(cfg.seed, 0));
-    log.write(out).with_context(|| format!("cannot write {}", out.display()))?;
+    log.write(out)?;
     let samples: usize = log.steps.iter().map(|s| s.samples()).sum();
     let effects: Vec<&str> = cfg.effects.iter().map(|e| e.effect.name()).collect();
     eprintln!(

@@ -52,6 +52,8 @@ pub struct CalibrationLog {
 pub enum LogError {
     #[error("{}: cannot read: {source}", path.display())]
     Io { path: PathBuf, source: std::io::Error },
+    #[error("{}: cannot write: {problem}", path.display())]
+    Write { path: PathBuf, problem: String },
     #[error("{}: {problem}", path.display())]
     Format { path: PathBuf, problem: String },
     #[error("{}: missing column(s): {}", path.display(), missing.join(", "))]
@@ -315,7 +317,13 @@ impl CalibrationLog {
             let batch = RecordBatch::try_new(Arc::new(Schema::new(fields)), arrays)
                 .map_err(|e| LogError::Format { path: path.to_path_buf(), problem: e.to_string() })?;
             crate::io::parquet::write_part(path, &batch, &[("gfcal:version".into(), env!("CARGO_PKG_VERSION").into())])
-                .map_err(|e| LogError::Format { path: path.to_path_buf(), problem: e.to_string() })
+                .map_err(|e| LogError::Write {
+                    path: path.to_path_buf(),
+                    problem: match e {
+                        crate::io::parquet::ParquetIoError::Io { source, .. } => source.to_string(),
+                        other => other.to_string(),
+                    },
+                })
         } else {
             let mut text = names.join(",") + "\n";
             let rows = data.first().map(|d| d.len()).unwrap_or(0);
@@ -329,7 +337,7 @@ impl CalibrationLog {
                 text.push('\n');
             }
             crate::io::write_atomic(path, text.as_bytes())
-                .map_err(|source| LogError::Io { path: path.to_path_buf(), source })
+                .map_err(|source| LogError::Write { path: path.to_path_buf(), problem: source.to_string() })
         }
     }
 }

@@ -467,3 +467,17 @@ fn endless_and_silently_adjusted_configs_are_refused() {
     let design = design_with("step_duration_s = 1.0", "step_duration_s = 0.001");
     refused_cmd("identify", &design, &["schedule.step_duration_s", "less than one sample"]);
 }
+
+/// Issue 13's messages: `simulate-log` into a missing folder says it cannot write (it said
+/// "cannot read"), once, naming the file.
+#[test]
+fn simulate_log_into_a_missing_folder_says_it_cannot_write() {
+    for name in ["log.csv", "log.parquet"] {
+        let out = format!("/nonexistent-gfcal-folder/{name}");
+        let o = gfcal(&["simulate-log", "configs/discrepancy_example.toml", "--out", &out]);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(err.contains(&out) && err.contains("cannot write") && !err.contains("cannot read"), "{err}");
+        assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+    }
+}
