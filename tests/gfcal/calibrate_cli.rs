@@ -11,7 +11,7 @@ use gfcal::rng::trial_rng;
 use gfcal::selfcal::recording::RecordingArray;
 use gfcal::selfcal::simulate::{Protocol, random_truth, simulate};
 
-use super::selfcal::mimu_array;
+use super::selfcal::{mimu_array, protocol};
 
 const ARRAY: &str = "configs/arrays/mimu4444_corners.toml";
 
@@ -29,18 +29,7 @@ fn simulated_rows(array: &RecordingArray, poses: usize, dynamic_s: f64) -> Vec<V
     let n = array.array.len();
     let mut rng = trial_rng(11, 0);
     let truth = random_truth(&array.array, 0.005, 0.3, 0.004, 0.5e-3, &mut rng);
-    let protocol = Protocol {
-        poses,
-        pose_s: 7.0,
-        transition_s: 1.5,
-        dynamic_s,
-        rate_rms_rad_s: 20.0,
-        accel_rms_m_s2: 20.0,
-        sample_rate_hz: 62.5,
-        noise_sigma_m_s2: vec![0.04; n],
-        gyro_noise_sigma_rad_s: 0.01,
-        gravity_m_s2: 9.80665,
-    };
+    let protocol = Protocol { poses, pose_s: 7.0, dynamic_s, ..protocol(n) };
     let sim = simulate(array, &truth, &protocol, &mut trial_rng(11, 1)).expect("simulated");
     let rec = &sim.recording;
     let mut header = vec!["t_s".to_string()];

@@ -414,19 +414,7 @@ fn fisher_information_matches_finite_differences_of_the_simulator() {
     let array = cube();
     let truth = paper_truth(&array).unwrap();
     let density = 50.0 * M_S2_PER_UG;
-    let base = paper_schedule(&array);
-    let steps = base
-        .steps()
-        .iter()
-        .map(|s| {
-            let mut s = s.clone();
-            if s.is_spin() {
-                s.sample_rate_hz = 1000.0;
-            }
-            s
-        })
-        .collect();
-    let schedule = Schedule::new("mixed", steps).unwrap();
+    let schedule = crate::sample_rates::paper_with_spins_at(&array, 1000.0);
     for form in [Form::Triad, Form::Tilt] {
         let layout = Layout::new(&array, form).unwrap();
         let x = layout.pack(&truth).unwrap();

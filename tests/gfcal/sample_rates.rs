@@ -27,7 +27,7 @@ fn white() -> NoiseSpec {
 }
 
 /// The paper's schedule (1 s steps at 100 Hz) with its spins sampled at `spin_rate_hz`.
-fn paper_with_spins_at(array: &Array, spin_rate_hz: f64) -> Schedule {
+pub fn paper_with_spins_at(array: &Array, spin_rate_hz: f64) -> Schedule {
     let base = Schedule::hung_lee_2006(array, TWO_PI, 1.0, 100.0).expect("paper schedule");
     let steps = base
         .steps()

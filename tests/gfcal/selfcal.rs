@@ -24,7 +24,7 @@ pub fn mimu_array() -> RecordingArray {
 
 /// A short version of the board's protocol: 12 poses of 8 s, then 30 s of rotation at 62.5 Hz,
 /// rates of 20 rad/s RMS, with the static noise measured on the real board (0.04 m/s^2).
-fn protocol(n: usize) -> Protocol {
+pub fn protocol(n: usize) -> Protocol {
     Protocol {
         poses: 12,
         pose_s: 8.0,
