@@ -180,6 +180,20 @@ fn remove_stale_temporaries(dir: &Path) {
     }
 }
 
+/// The part numbers that have a trials file in `dir` (whole or not).
+fn parts_on_disk(dir: &Path) -> Vec<u64> {
+    std::fs::read_dir(dir.join("trials"))
+        .map(|d| {
+            d.flatten()
+                .filter_map(|e| {
+                    let name = e.file_name().to_string_lossy().into_owned();
+                    name.strip_prefix("part-")?.strip_suffix(".parquet")?.parse().ok()
+                })
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
 /// Runs the parts of this shard that are not on disk yet.
 pub fn run(
     cfg: &McConfig,
@@ -192,21 +206,27 @@ pub fn run(
     if shards <= 1 {
         remove_stale_temporaries(&opts.out);
     }
-    let parts: Vec<u64> = (0..cfg.parts()).filter(|p| p % shards == shard).collect();
+    // Part bookkeeping grows with the work on disk, not with the trial count: this shard's parts
+    // are `shard, shard + shards, ...`, taken lazily; only the parts that have a file are checked.
+    let part_count = cfg.parts();
     let part_trials = |p: u64| (p * cfg.trials_per_part)..((p + 1) * cfg.trials_per_part).min(cfg.total_trials());
+    let part_len = |p: u64| part_trials(p).end - part_trials(p).start;
     // A part is done when both its files are whole (footer and row count: a file truncated by a
     // crash is redone, not counted).
     let params_per_trial = cfg.cells.first().map_or(0, |c| c.layout.len() as u64);
     let done = |p: u64| {
-        let n = part_trials(p).end - part_trials(p).start;
-        is_whole_part(&part_path(&opts.out, "trials", p), n)
-            && is_whole_part(&part_path(&opts.out, "parameters", p), n * params_per_trial)
+        is_whole_part(&part_path(&opts.out, "trials", p), part_len(p))
+            && is_whole_part(&part_path(&opts.out, "parameters", p), part_len(p) * params_per_trial)
     };
-    let whole: Vec<bool> = parts.iter().map(|&p| done(p)).collect();
-    let todo: Vec<u64> = parts.iter().zip(&whole).filter(|(_, w)| !**w).map(|(&p, _)| p).collect();
-    let total: u64 = parts.iter().map(|&p| part_trials(p).end - part_trials(p).start).sum();
-    let already: u64 =
-        parts.iter().zip(&whole).filter(|(_, w)| **w).map(|(&p, _)| part_trials(p).end - part_trials(p).start).sum();
+    let mine = |p: &u64| *p < part_count && p % shards == shard;
+    let done_parts: std::collections::BTreeSet<u64> =
+        parts_on_disk(&opts.out).into_iter().filter(mine).filter(|&p| done(p)).collect();
+    // This shard's trials, by arithmetic: its parts are full but perhaps the run's last one.
+    let mine_count = if shard < part_count { (part_count - 1 - shard) / shards + 1 } else { 0 };
+    let short_last =
+        if mine(&part_count.saturating_sub(1)) { cfg.trials_per_part - part_len(part_count - 1) } else { 0 };
+    let total: u64 = (mine_count * cfg.trials_per_part).saturating_sub(short_last);
+    let already: u64 = done_parts.iter().map(|&p| part_len(p)).sum();
     let prepared: Vec<Prepared> = cfg.cells.iter().map(Prepared::new).collect();
     let mut builder = rayon::ThreadPoolBuilder::new();
     if let Some(t) = opts.threads {
@@ -215,7 +235,8 @@ pub fn run(
     let pool = builder.build().map_err(|e| RunError::Threads(e.to_string()))?;
     observer.start(total, already);
     let mut trials_run = 0;
-    for &p in &todo {
+    let mut parts_written = 0;
+    for p in (shard..part_count).step_by(shards as usize).filter(|p| !done_parts.contains(p)) {
         let range = part_trials(p);
         let part_started = now();
         let records: Vec<TrialRecord> = pool.install(|| {
@@ -244,9 +265,10 @@ pub fn run(
         ];
         write_part(&part_path(&opts.out, "parameters", p), &parameters_batch(cfg, &records)?, &metadata)?;
         write_part(&part_path(&opts.out, "trials", p), &trials_batch(cfg, &records)?, &metadata)?;
+        parts_written += 1;
     }
     observer.finish();
-    let complete = (0..cfg.parts()).all(done);
+    let complete = (0..part_count).all(done);
     if complete {
         let run_file = opts.out.join("run.json");
         let body = serde_json::to_string_pretty(&run_json(cfg, config_path, &started, Some(&now())))
@@ -254,10 +276,5 @@ pub fn run(
             + "\n";
         crate::io::write_atomic(&run_file, body.as_bytes()).map_err(io_err(&run_file))?;
     }
-    Ok(RunOutcome {
-        parts_written: todo.len() as u64,
-        parts_skipped: (parts.len() - todo.len()) as u64,
-        trials_run,
-        complete,
-    })
+    Ok(RunOutcome { parts_written, parts_skipped: done_parts.len() as u64, trials_run, complete })
 }

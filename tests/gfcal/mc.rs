@@ -673,3 +673,35 @@ fn a_finished_run_says_so_and_resuming_it_has_no_nan_eta() {
     assert!(resumed.status.success(), "{err}");
     assert!(!err.contains("NaN"), "{err}");
 }
+
+/// Issue 13: a huge trial count (1e12) allocated gigabytes and checked every part before any
+/// work started (1e13 aborted). Part bookkeeping now grows with the work: the first part is on
+/// disk within seconds.
+#[test]
+fn a_huge_trial_count_starts_work_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(
+        dir.path(),
+        "huge.toml",
+        &SMALL.replace("trials_per_cell = 30", "trials_per_cell = 1000000000000"),
+    );
+    let out = dir.path().join("out");
+    let mut child = gfcal()
+        .args(["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while !out.join("trials/part-000000.parquet").exists() && t0.elapsed() < Duration::from_secs(60) {
+        if child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let exited = child.try_wait().unwrap();
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(exited.is_none(), "the run stopped: {exited:?}");
+    assert!(out.join("trials/part-000000.parquet").exists(), "no part after {:?}", t0.elapsed());
+}
