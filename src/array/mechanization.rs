@@ -192,6 +192,9 @@ pub fn describe_motion(v: &Vector6<f64>) -> String {
     let alpha = Vector3::new(v[0], v[1], v[2]);
     let accel = Vector3::new(v[3], v[4], v[5]);
     let fmt = |u: &Vector3<f64>| {
+        if !(u.norm() > 0.0 && u.norm().is_finite()) {
+            return "an undetermined direction".to_string();
+        }
         let u = u / u.norm();
         for (k, name) in ["x", "y", "z"].iter().enumerate() {
             if u[k].abs() > 1.0 - 1e-9 {
@@ -204,11 +207,30 @@ pub fn describe_motion(v: &Vector6<f64>) -> String {
     match (alpha.norm() > small, accel.norm() > small) {
         (true, false) => format!("angular acceleration about {}", fmt(&alpha)),
         (false, true) => format!("linear acceleration along {}", fmt(&accel)),
+        (false, false) => "a motion too small to name (a null direction of zero length)".into(),
         _ => format!(
             "angular acceleration about {} combined with linear acceleration along {} (ratio {:.3} m)",
             fmt(&alpha),
             fmt(&accel),
             accel.norm() / alpha.norm()
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Vector6;
+
+    /// Issue 13: a message about a degenerate array never prints NaN.
+    #[test]
+    fn motions_are_named_without_nan() {
+        for v in [
+            Vector6::zeros(),
+            Vector6::new(1e-12, 0.0, 0.0, 0.0, 0.0, 1e-12),
+            Vector6::new(0.0, 0.0, 1.0, 0.0, 0.0, 0.0),
+        ] {
+            let d = super::describe_motion(&v);
+            assert!(!d.contains("NaN") && !d.contains("nan"), "{d}");
+        }
     }
 }
