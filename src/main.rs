@@ -209,7 +209,7 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("gfcal: error: {e:#}");
+            eprintln!("gfcal: error: {}", message(&e));
             if e.downcast_ref::<InputError>().is_some() {
                 ExitCode::from(EXIT_BAD_INPUT)
             } else {
@@ -217,6 +217,21 @@ fn main() -> ExitCode {
             }
         }
     }
+}
+
+/// The error and its causes, each said once: a cause whose text the message already holds
+/// (an error that prints its source, then the source itself) is left out.
+fn message(e: &anyhow::Error) -> String {
+    let mut out = e.to_string();
+    for cause in e.chain().skip(1) {
+        let text = cause.to_string();
+        let plain = text.split(" (os error").next().unwrap_or(&text).to_string();
+        if !out.contains(&plain) {
+            out.push_str(": ");
+            out.push_str(&text);
+        }
+    }
+    out
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {
@@ -315,4 +330,19 @@ fn drift_table(rows: &[DriftRow]) -> String {
         ));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    /// Issue 13: "Read-only file system (os error 30): Read-only file system" said the cause twice.
+    #[test]
+    fn an_error_says_each_cause_once() {
+        let io = std::io::Error::from_raw_os_error(30);
+        let text = io.to_string();
+        let e = anyhow::Error::new(io).context(format!("cannot write out.csv: {text}"));
+        let m = super::message(&e);
+        assert_eq!(m.matches("Read-only file system").count(), 1, "{m}");
+        let e = anyhow::Error::new(std::io::Error::from_raw_os_error(2)).context("cannot write out.csv");
+        assert_eq!(super::message(&e), "cannot write out.csv: No such file or directory (os error 2)");
+    }
 }
