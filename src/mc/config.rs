@@ -278,9 +278,8 @@ impl McConfig {
     pub fn from_text(text: String, path: &Path) -> Result<Self, ConfigError> {
         let base: toml::Table = toml::from_str(&text)
             .map_err(|e| ConfigError::Parse { path: path.to_path_buf(), message: e.to_string() })?;
-        let file: McFile = base
-            .clone()
-            .try_into()
+        // Read from the text itself (not the table), so that an error names its line.
+        let file: McFile = toml::from_str(&text)
             .map_err(|e: toml::de::Error| ConfigError::Parse { path: path.to_path_buf(), message: e.to_string() })?;
         let bad = |b: Bad| b.in_file(path);
         if let Some(s) = &file.sensitivity {

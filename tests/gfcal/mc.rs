@@ -288,7 +288,7 @@ fn run_refused(text: &str, words: &[&str]) {
 
 #[test]
 fn bad_run_configs_are_refused_before_anything_is_written() {
-    run_refused(&SMALL.replace("seed = 7", "seed = 7\nsede = 8"), &["bad.toml", "sede", "unknown field"]);
+    run_refused(&SMALL.replace("seed = 7", "seed = 7\nsede = 8"), &["bad.toml", "sede", "unknown field", "line 4"]);
     run_refused(
         &SMALL.replace("bias_mg = { dist = \"normal\", sigma = 1.0 }", "bias_mg = { dist = \"normal\", sigma = -1.0 }"),
         &["errors.bias_mg.sigma", "negative"],
