@@ -470,18 +470,20 @@ fn srrc_recovers_known_answers() {
     assert!((c[0].unwrap() - c[1].unwrap()).abs() < 0.05 && c[0].unwrap() > 0.6, "{c:?}");
 }
 
-/// Only accelerometer 2's scale factor varies (nominal 2.5, +-1000 ppm; its axis sees gravity at rest): the nominal-compensation
-/// drift follows |k - k_nominal|, so that is the SRRC's input. With |k| (about 2.5 (1 + delta),
-/// ranked by the signed delta) the index was near 0 (issue 12, defect 3).
-#[test]
-fn a_scale_factors_sensitivity_is_measured_from_its_nominal() {
-    let text = r#"
-name = "one_scale_factor"
-seed = 5
+/// A run at rest where only the errors of `errors` (lines of the `[errors]` section) vary, with
+/// nominal compensation only; its folder, output and SRRC rows.
+fn one_source_run(
+    name: &str,
+    seed: u64,
+    errors: &str,
+) -> (tempfile::TempDir, PathBuf, Vec<gfcal::mc::sensitivity::SensitivityRow>) {
+    let text = format!(
+        r#"
+name = "{name}"
+seed = {seed}
 trials_per_cell = 200
 [errors]
-nominal_scale_factor = 2.5
-scale_factor_ppm = { dist = "normal", sigma = [0.0, 1000.0, 0.0, 0.0, 0.0, 0.0] }
+{errors}
 [noise]
 white_density_ug_per_sqrt_hz = 50.0
 [schedule]
@@ -493,13 +495,27 @@ kind = "rest"
 step_s = 0.05
 horizons_s = [2.0]
 compensations = ["nominal"]
-"#;
+"#
+    );
     let dir = tempfile::tempdir().unwrap();
-    let cfg_path = write_config(dir.path(), "one.toml", text);
+    let cfg_path = write_config(dir.path(), "one.toml", &text);
     let cfg = McConfig::load(&cfg_path).unwrap();
     let out = dir.path().join("out");
     run(&cfg, &cfg_path, &opts(&out, 2, (0, 1)), &Silent).unwrap();
     let rows = gfcal::mc::sensitivity::sensitivity(&out, 1000).unwrap();
+    (dir, out, rows)
+}
+
+/// Only accelerometer 2's scale factor varies (nominal 2.5, +-1000 ppm; its axis sees gravity at rest): the nominal-compensation
+/// drift follows |k - k_nominal|, so that is the SRRC's input. With |k| (about 2.5 (1 + delta),
+/// ranked by the signed delta) the index was near 0 (issue 12, defect 3).
+#[test]
+fn a_scale_factors_sensitivity_is_measured_from_its_nominal() {
+    let (_dir, _out, rows) = one_source_run(
+        "one_scale_factor",
+        5,
+        "nominal_scale_factor = 2.5\nscale_factor_ppm = { dist = \"normal\", sigma = [0.0, 1000.0, 0.0, 0.0, 0.0, 0.0] }",
+    );
     let column = "nominal_rate_err_rad_s_at_2s";
     let mine: Vec<_> = rows.iter().filter(|r| r.output == column).collect();
     assert_eq!(mine.len(), 1, "{column}: only a2.scale_factor varies: {mine:?}");
@@ -510,30 +526,8 @@ compensations = ["nominal"]
 #[test]
 fn one_error_source_gets_the_whole_index() {
     // Only accelerometer 1's bias varies: the nominal-compensation drift depends on it alone.
-    let text = r#"
-name = "one_source"
-seed = 3
-trials_per_cell = 200
-[errors]
-bias_mg = { dist = "normal", sigma = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0] }
-[noise]
-white_density_ug_per_sqrt_hz = 50.0
-[schedule]
-preset = "hung_lee_2006"
-step_duration_s = 0.2
-[trajectory]
-kind = "rest"
-[navigation]
-step_s = 0.05
-horizons_s = [2.0]
-compensations = ["nominal"]
-"#;
-    let dir = tempfile::tempdir().unwrap();
-    let cfg_path = write_config(dir.path(), "one.toml", text);
-    let cfg = McConfig::load(&cfg_path).unwrap();
-    let out = dir.path().join("out");
-    run(&cfg, &cfg_path, &opts(&out, 2, (0, 1)), &Silent).unwrap();
-    let rows = gfcal::mc::sensitivity::sensitivity(&out, 1000).unwrap();
+    let (_dir, out, rows) =
+        one_source_run("one_source", 3, "bias_mg = { dist = \"normal\", sigma = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0] }");
     for metric in ["rate_err_rad_s", "attitude_err_rad", "velocity_err_m_s"] {
         let column = format!("nominal_{metric}_at_2s");
         let mine: Vec<_> = rows.iter().filter(|r| r.output == column).collect();
