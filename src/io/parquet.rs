@@ -234,9 +234,7 @@ pub fn parameters_batch(cfg: &McConfig, records: &[TrialRecord]) -> Result<Recor
 pub fn write_part(path: &Path, batch: &RecordBatch, metadata: &[(String, String)]) -> Result<(), ParquetIoError> {
     let shown = path.display().to_string();
     let io = |source| ParquetIoError::Io { path: shown.clone(), source };
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let file_name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = dir.join(format!(".{file_name}.tmp.{}", std::process::id()));
+    let tmp = super::temporary_path(path).map_err(io)?;
     let units: HashMap<String, String> = batch
         .schema()
         .fields()

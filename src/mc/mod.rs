@@ -9,6 +9,7 @@
 //! grouped into parts of a fixed size; a part is written whole (temporary name, then rename), so
 //! an interrupted run resumes by running the parts that are missing.
 
+pub mod claim;
 pub mod config;
 pub mod design;
 pub mod protocol;

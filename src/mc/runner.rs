@@ -3,14 +3,17 @@
 //! Layout of `DIR`: `run.json` (provenance: version, commit, config text, seed, times),
 //! `trials/part-NNNNNN.parquet`, `parameters/part-NNNNNN.parquet` (part `p` holds trials
 //! `p T .. (p + 1) T`, `T = output.trials_per_part`), `summary.csv`. A part's parameters file is
-//! written before its trials file, each atomically; a part is done when its trials file exists.
-//! Shard `i` of `n` runs the parts with `p % n == i`.
+//! written before its trials file, each atomically; a part is done when both files are whole
+//! (footer and row count). Shard `i` of `n` runs the parts with `p % n == i`. Processes started
+//! together into one folder share it (see [`super::claim`]): the first prepares the run, the
+//! others join it, and each part is computed by one process.
 
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
 
 use rayon::prelude::*;
 
+use super::claim::{self, Entry, RunLock};
 use super::config::McConfig;
 use super::trial::{Prepared, TrialRecord, run_trial};
 use crate::io::parquet::{ParquetIoError, is_whole_part, parameters_batch, trials_batch, write_part};
@@ -103,8 +106,60 @@ fn io_err(path: &Path) -> impl Fn(std::io::Error) -> RunError + '_ {
     move |source| RunError::Io { path: path.to_path_buf(), source }
 }
 
-/// Checks and prepares the output folder; returns the run's start time.
-fn prepare_output(cfg: &McConfig, config_path: &Path, opts: &RunOptions) -> Result<String, RunError> {
+/// Checks and prepares the output folder; returns the run's start time and this process's hold
+/// on the folder (shared: other processes may join).
+fn prepare_output(cfg: &McConfig, config_path: &Path, opts: &RunOptions) -> Result<(String, RunLock), RunError> {
+    let dir = &opts.out;
+    let output = |problem: String| RunError::Output { path: dir.clone(), problem };
+    std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+    // A process that finds another one writing the folder waits for it to have prepared the
+    // folder and joins; if that one gave up (refused), the folder is looked at again.
+    for _ in 0..100 {
+        match claim::enter(dir).map_err(io_err(dir))? {
+            Entry::Alone(lock) => {
+                let started = prepare_alone(cfg, config_path, opts)?;
+                return Ok((started, lock.share().map_err(io_err(dir))?));
+            }
+            Entry::Joining(lock) => {
+                if opts.force {
+                    return Err(output(
+                        "another gfcal process is writing this run now; --force would destroy its work (wait for                          it, or stop it first)"
+                            .into(),
+                    ));
+                }
+                if let Some(started) = join(cfg, dir)? {
+                    return Ok((started, lock));
+                }
+            }
+        }
+    }
+    Err(output("other gfcal processes keep entering and leaving this folder; try again".into()))
+}
+
+/// The run in `dir` that other processes are writing, if it is this config's: its start time.
+/// `None` when it has no run.json (the process that had the folder left without creating it).
+fn join(cfg: &McConfig, dir: &Path) -> Result<Option<String>, RunError> {
+    let run_file = dir.join("run.json");
+    let output = |problem: String| RunError::Output { path: dir.to_path_buf(), problem };
+    let text = match std::fs::read_to_string(&run_file) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(io_err(&run_file)(e)),
+    };
+    let previous: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| output(format!("run.json is not readable ({e})")))?;
+    if previous["config_text"].as_str() != Some(cfg.text.as_str()) {
+        return Err(output(format!(
+            "another gfcal process is writing a different run here now (`{}`, config {}); use another --out",
+            previous["name"].as_str().unwrap_or("?"),
+            previous["config_path"].as_str().unwrap_or("?")
+        )));
+    }
+    Ok(Some(previous["started"].as_str().map(String::from).unwrap_or_else(now)))
+}
+
+/// Prepares the folder when no other process is writing it.
+fn prepare_alone(cfg: &McConfig, config_path: &Path, opts: &RunOptions) -> Result<String, RunError> {
     let dir = &opts.out;
     let run_file = dir.join("run.json");
     let output = |problem: String| RunError::Output { path: dir.clone(), problem };
@@ -130,6 +185,7 @@ fn prepare_output(cfg: &McConfig, config_path: &Path, opts: &RunOptions) -> Resu
                 "holds this run, unfinished; use --resume to finish it or --force to start over".into()
             }));
         } else {
+            remove_stale_temporaries(dir);
             return Ok(previous["started"].as_str().map(String::from).unwrap_or_else(now));
         }
     } else if dir.join("trials").exists() || dir.join("parameters").exists() {
@@ -141,17 +197,19 @@ fn prepare_output(cfg: &McConfig, config_path: &Path, opts: &RunOptions) -> Resu
             ));
         }
     }
+    remove_stale_temporaries(dir);
+    // run.json first: a folder with part folders but no run.json is never a run in progress.
+    let started = now();
+    let body = serde_json::to_string_pretty(&run_json(cfg, config_path, &started, None)).unwrap_or_default() + "\n";
+    crate::io::create_new_atomic(&run_file, body.as_bytes()).map_err(io_err(&run_file))?;
     for sub in ["trials", "parameters"] {
         std::fs::create_dir_all(dir.join(sub)).map_err(io_err(dir))?;
     }
-    let started = now();
-    let body = serde_json::to_string_pretty(&run_json(cfg, config_path, &started, None)).unwrap_or_default() + "\n";
-    crate::io::write_atomic(&run_file, body.as_bytes()).map_err(io_err(&run_file))?;
     Ok(started)
 }
 
 fn clear(dir: &Path) -> Result<(), RunError> {
-    for sub in ["trials", "parameters"] {
+    for sub in ["trials", "parameters", "locks"] {
         let p = dir.join(sub);
         if p.exists() {
             std::fs::remove_dir_all(&p).map_err(io_err(&p))?;
@@ -166,8 +224,15 @@ fn clear(dir: &Path) -> Result<(), RunError> {
     Ok(())
 }
 
-/// Removes temporary files left by an interrupted writer (not while other shards may write).
+/// Removes temporary files left by an interrupted writer (only while no other process writes).
 fn remove_stale_temporaries(dir: &Path) {
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with(".run.json.tmp.") {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
     for sub in ["trials", "parameters"] {
         if let Ok(entries) = std::fs::read_dir(dir.join(sub)) {
             for e in entries.flatten() {
@@ -202,10 +267,7 @@ pub fn run(
     observer: &dyn Observer,
 ) -> Result<RunOutcome, RunError> {
     let (shard, shards) = opts.shard;
-    let started = prepare_output(cfg, config_path, opts)?;
-    if shards <= 1 {
-        remove_stale_temporaries(&opts.out);
-    }
+    let (started, _folder_lock) = prepare_output(cfg, config_path, opts)?;
     // Part bookkeeping grows with the work on disk, not with the trial count: this shard's parts
     // are `shard, shard + shards, ...`, taken lazily; only the parts that have a file are checked.
     let part_count = cfg.parts();
@@ -236,7 +298,17 @@ pub fn run(
     observer.start(total, already);
     let mut trials_run = 0;
     let mut parts_written = 0;
+    let mut parts_skipped = done_parts.len() as u64;
     for p in (shard..part_count).step_by(shards as usize).filter(|p| !done_parts.contains(p)) {
+        // One process per part: a part another process holds is left to it; one finished since
+        // the listing above is skipped.
+        let Some(claim) = claim::claim_part(&opts.out, p).map_err(io_err(&opts.out))? else { continue };
+        if done(p) {
+            claim.release();
+            parts_skipped += 1;
+            observer.advance(part_len(p));
+            continue;
+        }
         let range = part_trials(p);
         let part_started = now();
         let records: Vec<TrialRecord> = pool.install(|| {
@@ -265,6 +337,7 @@ pub fn run(
         ];
         write_part(&part_path(&opts.out, "parameters", p), &parameters_batch(cfg, &records)?, &metadata)?;
         write_part(&part_path(&opts.out, "trials", p), &trials_batch(cfg, &records)?, &metadata)?;
+        claim.release();
         parts_written += 1;
     }
     observer.finish();
@@ -276,5 +349,5 @@ pub fn run(
             + "\n";
         crate::io::write_atomic(&run_file, body.as_bytes()).map_err(io_err(&run_file))?;
     }
-    Ok(RunOutcome { parts_written, parts_skipped: done_parts.len() as u64, trials_run, complete })
+    Ok(RunOutcome { parts_written, parts_skipped, trials_run, complete })
 }

@@ -699,3 +699,88 @@ fn a_huge_trial_count_starts_work_at_once() {
     assert!(exited.is_none(), "the run stopped: {exited:?}");
     assert!(out.join("trials/part-000000.parquet").exists(), "no part after {:?}", t0.elapsed());
 }
+
+/// Parts written, from a run's closing line ("N trials run, M parts written, ...").
+fn parts_written(stderr: &str) -> u64 {
+    let line =
+        stderr.lines().find(|l| l.contains("parts written")).unwrap_or_else(|| panic!("no closing line: {stderr}"));
+    let before = line.split(" parts written").next().unwrap();
+    before.rsplit(' ').next().unwrap().parse().unwrap()
+}
+
+#[test]
+fn processes_started_together_into_one_folder_share_it() {
+    // Before the folder lock: 4 shards started together left runs incomplete ("holds results
+    // without a run.json") in most repetitions, and two unsharded runs ended the same way.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(dir.path(), "small.toml", SMALL);
+    let clean = dir.path().join("clean");
+    let cfgv = McConfig::load(&cfg).unwrap();
+    run(&cfgv, &cfg, &opts(&clean, 2, (0, 1)), &Silent).unwrap();
+    let parts = cfgv.parts();
+    for repetition in 0..6 {
+        let out = dir.path().join(format!("together-{repetition}"));
+        // Four shards with --resume (the README's job array), then two unsharded runs, each at once.
+        let commands: Vec<Vec<String>> = if repetition % 2 == 0 {
+            (0..4).map(|i| vec!["--shard".to_string(), format!("{i}/4"), "--resume".to_string()]).collect()
+        } else {
+            vec![vec![], vec![]]
+        };
+        let children: Vec<_> = commands
+            .iter()
+            .map(|extra| {
+                gfcal()
+                    .args(["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap(), "--threads", "1"])
+                    .args(extra)
+                    .stdout(std::process::Stdio::null())
+                    .stderr(std::process::Stdio::piped())
+                    .spawn()
+                    .unwrap()
+            })
+            .collect();
+        let mut written = 0;
+        for child in children {
+            let o = child.wait_with_output().unwrap();
+            let stderr = String::from_utf8_lossy(&o.stderr);
+            assert!(o.status.success(), "repetition {repetition}: {stderr}");
+            written += parts_written(&stderr);
+        }
+        assert_eq!(written, parts, "repetition {repetition}: each part computed by exactly one process");
+        same_tables(&clean, &out);
+        let run_json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("run.json")).unwrap()).unwrap();
+        assert!(run_json["finished"].is_string(), "repetition {repetition}: the run is marked finished");
+        assert!(std::fs::read_dir(out.join("locks")).map_or(true, |d| d.count() == 0), "no part claims left");
+    }
+}
+
+#[test]
+fn a_different_config_cannot_join_a_run_in_progress() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(dir.path(), "small.toml", SMALL);
+    let other = write_config(dir.path(), "other.toml", &SMALL.replace("seed = 7", "seed = 8"));
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    // A process writing the folder holds its lock: stand in for it with the library's own lock.
+    let cfgv = McConfig::load(&cfg).unwrap();
+    run(&cfgv, &cfg, &RunOptions { shard: (0, 8), ..opts(&out, 1, (0, 8)) }, &Silent).unwrap();
+    let gfcal::mc::claim::Entry::Alone(lock) = gfcal::mc::claim::enter(&out).unwrap() else { panic!("alone") };
+    let _held = lock.share().unwrap();
+    for (config, extra, expected) in [
+        (&other, vec!["--resume"], "another gfcal process is writing a different run here now"),
+        (&cfg, vec!["--force"], "--force would destroy its work"),
+    ] {
+        let o = gfcal()
+            .args(["run", config.to_str().unwrap(), "--out", out.to_str().unwrap()])
+            .args(extra)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains(expected), "{stderr}");
+    }
+    // The same config joins without --resume and finishes the run.
+    let o = gfcal().args(["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(parts_written(&String::from_utf8_lossy(&o.stderr)), cfgv.parts() - 1);
+}
