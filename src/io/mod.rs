@@ -2,6 +2,7 @@
 //! half-written file.
 
 pub mod csv;
+pub mod guard;
 pub mod parquet;
 pub mod table;
 

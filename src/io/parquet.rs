@@ -283,34 +283,50 @@ pub fn column<'a, T: 'static>(batch: &'a RecordBatch, name: &str, path: &Path) -
     })
 }
 
+/// The decoder's failure on a damaged file, as an error naming the file.
+fn damaged(shown: &str, message: String) -> ParquetIoError {
+    ParquetIoError::Format {
+        path: shown.to_string(),
+        message: format!("not a readable Parquet file (the decoder failed: {message})"),
+    }
+}
+
 /// Reads every record batch of a Parquet file.
 pub fn read_batches(path: &Path) -> Result<Vec<RecordBatch>, ParquetIoError> {
     let shown = path.display().to_string();
     let file = File::open(path).map_err(|source| ParquetIoError::Io { path: shown.clone(), source })?;
-    let reader =
-        ParquetRecordBatchReaderBuilder::try_new(file).and_then(|b| b.build()).map_err(|e| batch_error(&shown, e))?;
-    reader.collect::<Result<Vec<_>, _>>().map_err(|e| batch_error(&shown, e))
+    super::guard::decode(|| {
+        let reader = ParquetRecordBatchReaderBuilder::try_new(file)
+            .and_then(|b| b.build())
+            .map_err(|e| batch_error(&shown, e))?;
+        reader.collect::<Result<Vec<_>, _>>().map_err(|e| batch_error(&shown, e))
+    })
+    .map_err(|m| damaged(&shown, m))?
 }
 
 /// Whether `path` is a whole Parquet file of `rows` rows: its footer reads (a file truncated by a
 /// crash has none) and its row count is the expected one. Reads the footer only.
 pub fn is_whole_part(path: &Path, rows: u64) -> bool {
     let Ok(file) = File::open(path) else { return false };
-    match ParquetRecordBatchReaderBuilder::try_new(file) {
+    super::guard::decode(|| match ParquetRecordBatchReaderBuilder::try_new(file) {
         Ok(b) => b.metadata().file_metadata().num_rows() == rows as i64,
         Err(_) => false,
-    }
+    })
+    .unwrap_or(false)
 }
 
 /// The key-value metadata of a Parquet file.
 pub fn read_metadata(path: &Path) -> Result<HashMap<String, String>, ParquetIoError> {
     let shown = path.display().to_string();
     let file = File::open(path).map_err(|source| ParquetIoError::Io { path: shown.clone(), source })?;
-    let builder = ParquetRecordBatchReaderBuilder::try_new(file).map_err(|e| batch_error(&shown, e))?;
-    Ok(builder
-        .metadata()
-        .file_metadata()
-        .key_value_metadata()
-        .map(|kv| kv.iter().map(|k| (k.key.clone(), k.value.clone().unwrap_or_default())).collect())
-        .unwrap_or_default())
+    super::guard::decode(|| {
+        let builder = ParquetRecordBatchReaderBuilder::try_new(file).map_err(|e| batch_error(&shown, e))?;
+        Ok(builder
+            .metadata()
+            .file_metadata()
+            .key_value_metadata()
+            .map(|kv| kv.iter().map(|k| (k.key.clone(), k.value.clone().unwrap_or_default())).collect())
+            .unwrap_or_default())
+    })
+    .map_err(|m| damaged(&shown, m))?
 }

@@ -132,7 +132,15 @@ fn read_csv(path: &Path) -> Result<Table, TableError> {
     Ok(Table { path: path.to_path_buf(), names, data, first_null_row })
 }
 
+/// Reads a Parquet table; the decoder's panic on a damaged file is an error (see `io::guard`).
 fn read_parquet(path: &Path) -> Result<Table, TableError> {
+    crate::io::guard::decode(|| read_parquet_unguarded(path)).map_err(|m| TableError::Format {
+        path: path.to_path_buf(),
+        problem: format!("not a readable Parquet file (the decoder failed: {m})"),
+    })?
+}
+
+fn read_parquet_unguarded(path: &Path) -> Result<Table, TableError> {
     let batches = crate::io::parquet::read_batches(path)
         .map_err(|e| TableError::Format { path: path.to_path_buf(), problem: e.to_string() })?;
     let schema = match batches.first() {
