@@ -46,9 +46,9 @@ fn load(path: &Path) -> anyhow::Result<Loaded> {
 fn describe_noise(l: &Loaded) -> String {
     let rate = l.cfg.schedule.steps()[0].sample_rate_hz;
     format!(
-        "white noise {:.3} ug/sqrt(Hz): {:.4} mg per sample at {rate} Hz (bias instability and quantization are not in the bound)",
-        l.density_m_s2_per_sqrt_hz / M_S2_PER_UG,
-        l.density_m_s2_per_sqrt_hz * rate.sqrt() / M_S2_PER_MG
+        "white noise {:.4e} m/s^2/sqrt(Hz): {:.4e} m/s^2 per sample at {rate} Hz (bias instability and quantization are not in the bound)",
+        l.density_m_s2_per_sqrt_hz,
+        l.density_m_s2_per_sqrt_hz * rate.sqrt()
     )
 }
 
@@ -59,21 +59,22 @@ fn describe_pose(pose: &PoseError) -> String {
         } else if sigma_rad.is_infinite() {
             "free (placed by hand)".to_string()
         } else {
-            format!("tilt sigma {:.1} arcsec", sigma_rad / gfcal::units::RAD_PER_ARCSEC)
+            format!("tilt sigma {sigma_rad:.3e} rad")
         }
     };
     format!("pose error: static poses {}, spin axes {}", one(pose.static_sigma_rad), one(pose.spin_sigma_rad))
 }
 
 fn sigma_table(layout: &Layout, before: &Identifiability, after: Option<&Identifiability>) -> String {
+    // SI units, as in summary.csv, report.html and diagnose (the unit column says which).
     let mut s = format!("{:<18} {:>6} {:>14} {:>14}", "parameter", "unit", "target", "crb_sigma");
     if after.is_some() {
         s.push_str(&format!(" {:>14}", "crb_after"));
     }
     s.push_str("  status\n");
     for i in 0..layout.len() {
-        let (unit, f) = layout.kind(i).display_unit();
-        let fmt = |v: f64| if v.is_finite() { format!("{:>14.6}", v * f) } else { format!("{:>14}", "unidentifiable") };
+        let unit = layout.kind(i).si_unit();
+        let fmt = |v: f64| if v.is_finite() { format!("{:>14.4e}", v) } else { format!("{:>14}", "unidentifiable") };
         let last = after.unwrap_or(before);
         let status = if !last.crb_sigma[i].is_finite() {
             "UNIDENTIFIABLE"
@@ -328,12 +329,12 @@ pub fn diagnose(
     })?;
     let b = &d.baseline;
     println!(
-        "log {}: {} steps, {} outputs{}; noise within steps {:.4} mg per sample",
+        "log {}: {} steps, {} outputs{}; noise within steps {:.4e} m/s^2 per sample",
         log_path.display(),
         log.steps.len(),
         log.n,
         if log.has_temperature() { ", temperature" } else { "" },
-        b.noise_sigma_m_s2 / gfcal::units::M_S2_PER_MG
+        b.noise_sigma_m_s2
     );
     println!(
         "baseline fit: chi2/dof = {:.3} ({:.1} on {} dof, p = {:.2e}); held-out prediction error {:.3} (1 is noise alone)",

@@ -189,12 +189,12 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
     if let Some(g) = &cal.gyro_check {
         let _ = writeln!(
             s,
-            "gyroscope-free rate against the gyroscopes ({} unclipped samples): RMS difference {:.3} rad/s of {:.2} rad/s RMS ({:.1}%); after the best frame rotation ({:.2} mrad) {:.3} rad/s; median magnitude ratio {:.4}",
+            "gyroscope-free rate against the gyroscopes ({} unclipped samples): RMS difference {:.3} rad/s of {:.2} rad/s RMS ({:.1}%); after the best frame rotation ({:.2e} rad) {:.3} rad/s; median magnitude ratio {:.4}",
             g.samples,
             g.rms_rad_s,
             g.rms_reference_rad_s,
             100.0 * g.relative,
-            1e3 * g.frame_rotation_rad,
+            g.frame_rotation_rad,
             g.aligned_rms_rad_s,
             g.median_magnitude_ratio
         );

@@ -172,16 +172,20 @@ fn print_summary(cfg: &McConfig, s: &Summary, complete: bool) {
                 p.worst_share
             );
         }
-        println!("  {:<44} {:>7} {:>7} {:>9} {:>12} {:>12}", "drift", "unit", "n", "diverged", "median", "p95");
+        println!(
+            "  {:<44} {:>7} {:>7} {:>9} {:>12} {:>12} {:>12}",
+            "drift", "unit", "n", "diverged", "median", "p95", "p05"
+        );
         for d in s.drift.iter().filter(|d| d.cell == cell.index as u32) {
             println!(
-                "  {:<44} {:>7} {:>7} {:>9} {:>12} {:>12}",
+                "  {:<44} {:>7} {:>7} {:>9} {:>12} {:>12} {:>12}",
                 d.column,
                 d.unit,
                 d.n,
                 d.diverged,
                 sig(d.median, 4),
-                sig(d.p95, 4)
+                sig(d.p95, 4),
+                sig(d.p05, 4)
             );
         }
     }

@@ -66,9 +66,10 @@ impl ParamKind {
         }
     }
 
-    /// Display unit and the factor from SI to it: bias in g, angles in deg, location in mm
-    /// (the paper's tables).
-    pub fn display_unit(&self) -> (&'static str, f64) {
+    /// The unit of the paper's Tables 6-9 and the factor from SI to it: bias in g, angles in deg,
+    /// location in mm. Used only where gfcal lays its numbers beside the paper's
+    /// (`calib::reproduce`); everything else gfcal prints is in [`ParamKind::si_unit`].
+    pub fn paper_unit(&self) -> (&'static str, f64) {
         match self {
             ParamKind::ScaleFactor => ("1", 1.0),
             ParamKind::Bias => ("g", 1.0 / STANDARD_GRAVITY_M_S2),

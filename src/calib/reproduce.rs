@@ -203,7 +203,7 @@ pub fn reproduce(
     let (mut table8, mut table9) = (Vec::new(), Vec::new());
     for i in 0..layout.len() {
         let kind = layout.kind(i);
-        let (unit, f) = kind.display_unit();
+        let (unit, f) = kind.paper_unit();
         let j = layout.accel(i);
         let paper_value = match kind {
             ParamKind::Bias => recovered[j][0],

@@ -57,7 +57,7 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
         })
         .collect();
     page.table(&header_ref, &rows);
-    page.text("Scale factor shown as its deviation from 1 (ppm). Bias is input-referred; tilts are the tilt-form misalignment angles; dx, dy, dz are location errors (true minus nominal position).");
+    page.text("Units: SI, as in the JSON. Scale factor shown as its deviation from 1 (dimensionless). Bias is input-referred; tilts are the tilt-form misalignment angles; dx, dy, dz are location errors (true minus nominal position).");
 
     page.heading(2, "Residuals against the noise");
     page.text(&format!(
@@ -108,12 +108,12 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
     if let Some(g) = &cal.gyro_check {
         page.heading(2, "Gyroscope-free rate against the gyroscopes");
         page.text(&format!(
-            "{} samples with no gyroscope clipped: RMS difference {} rad/s against an RMS rate of {} rad/s ({:.1}%). After the best rotation between the two frames ({} mrad): {} rad/s. Median magnitude ratio {:.4}.",
+            "{} samples with no gyroscope clipped: RMS difference {} rad/s against an RMS rate of {} rad/s ({:.1}%). After the best rotation between the two frames ({} rad): {} rad/s. Median magnitude ratio {:.4}.",
             g.samples,
             significant(g.rms_rad_s, 3),
             significant(g.rms_reference_rad_s, 3),
             100.0 * g.relative,
-            significant(1e3 * g.frame_rotation_rad, 3),
+            significant(g.frame_rotation_rad, 3),
             significant(g.aligned_rms_rad_s, 3),
             g.median_magnitude_ratio
         ));

@@ -95,13 +95,13 @@ pub fn diagnosis_report(
     let mut page = Page::new(&format!("gfcal diagnosis: {log_name}"));
     let b = &d.baseline;
     page.text(&format!(
-        "{} steps, {} accelerometers{}; noise within steps {:.4} mg per sample. Baseline chi2/dof {:.3} \
+        "{} steps, {} accelerometers{}; noise within steps {:.4e} m/s^2 per sample. Baseline chi2/dof {:.3} \
          (p = {:.2e}), after the named effects {:.3} (p = {:.2e}). Held-out prediction error (1 is noise alone): \
          {:.3} before, {:.3} after.",
         log.steps.len(),
         log.n,
         if log.has_temperature() { ", with temperature" } else { "" },
-        b.noise_sigma_m_s2 / crate::units::M_S2_PER_MG,
+        b.noise_sigma_m_s2,
         d.gap_before,
         b.p_value,
         d.gap_after,

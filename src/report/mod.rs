@@ -11,7 +11,6 @@ pub mod run;
 use std::path::PathBuf;
 
 use crate::io::parquet::ParquetIoError;
-use crate::units::{M_PER_MM, M_S2_PER_MG};
 
 pub use plot::{AxisScale, Figure, Item, Panel, PlotError, render};
 
@@ -30,16 +29,11 @@ pub enum ReportError {
     Write { path: PathBuf, source: std::io::Error },
 }
 
-/// Display unit of a parameter given its SI unit, and the factor from SI to it: bias in mg,
-/// scale factor in ppm, misalignment in mrad, location in mm.
-pub fn display_unit(si_unit: &str) -> (&'static str, f64) {
-    match si_unit {
-        "m/s^2" => ("mg", 1.0 / M_S2_PER_MG),
-        "1" => ("ppm", 1e6),
-        "rad" => ("mrad", 1e3),
-        "m" => ("mm", 1.0 / M_PER_MM),
-        _ => ("SI", 1.0),
-    }
+/// The unit a report shows a parameter in, given its SI unit, and the factor from SI to it: SI
+/// itself, as in summary.csv, the Parquet tables, `identify` and `diagnose` (one unit per
+/// quantity everywhere gfcal writes).
+pub fn display_unit(si_unit: &str) -> (&str, f64) {
+    (si_unit, 1.0)
 }
 
 /// The kind of a parameter from its SI unit, for grouping plots.

@@ -463,10 +463,10 @@ fn location_figure(cfg: &McConfig, samples: &[Sample], summary: &Summary) -> Res
             format!(
                 "cell {c}: {}{}",
                 describe(cell),
-                if beyond > 0 { format!(" ({beyond} beyond +-{} mm)", sig(limit, 2)) } else { String::new() }
+                if beyond > 0 { format!(" ({beyond} beyond +-{} m)", sig(limit, 2)) } else { String::new() }
             ),
-            "true location error [mm]",
-            "recovered location error [mm]",
+            "true location error [m]",
+            "recovered location error [m]",
         )
         .with(Item::Line {
             label: Some("recovered = true".into()),
@@ -647,8 +647,8 @@ pub fn run_report(dir: &Path) -> Result<RunReport, ReportError> {
     let mut notes = Vec::new();
     let mut page = Page::new(&format!("gfcal run report: {}", cfg.name));
     page.text(&format!(
-        "{} trials of {} expected, in {} cell(s) of {} trials; seed {}. Units: bias in mg, scale factor in ppm, \
-         misalignment in mrad, location in mm, drift in SI. Weak parameters (Cramer-Rao sigma more than {WEAK_FACTOR} \
+        "{} trials of {} expected, in {} cell(s) of {} trials; seed {}. Units: SI throughout, as in summary.csv: bias in \
+         m/s^2, scale factor error dimensionless (1), misalignment in rad, location in m, drift in rad/s, rad, m/s, m. Weak parameters (Cramer-Rao sigma more than {WEAK_FACTOR} \
          times the median of their kind in the cell) are highlighted in the tables.",
         summary.trials,
         cfg.total_trials(),

@@ -503,7 +503,7 @@ fn the_paper_model_reproduces_table_8s_angles_to_every_printed_digit() {
     let printed = paper_recovered();
     for i in 0..layout.len() {
         let j = layout.accel(i);
-        let (_, f) = layout.kind(i).display_unit();
+        let (_, f) = layout.kind(i).paper_unit();
         let v = x[i] * f;
         match layout.kind(i) {
             ParamKind::Misalignment(m) => {

@@ -322,3 +322,95 @@ fn report_of_an_incomplete_run_says_so() {
         check_figure(f);
     }
 }
+
+/// Units that belong to no SI display: before issue 13 the report showed mg, ppm, mrad and mm,
+/// `identify` g, deg and mm, while summary.csv was SI.
+const NOT_SI: [&str; 10] = ["[mg]", "[ppm]", "[mrad]", "[mm]", "(mg)", "(ppm)", "(mrad)", "(mm)", " arcsec", "[deg]"];
+
+#[test]
+fn one_unit_per_quantity_in_summary_report_identify_and_diagnose() {
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let tmp = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(repo.join("configs/quickstart.toml"))
+        .unwrap()
+        .replace("trials_per_cell = 20000", "trials_per_cell = 200");
+    let out = run_config(tmp.path(), &text);
+    // summary.csv: parameter name -> unit.
+    let summary = gfcal::mc::summary::summary_csv(&gfcal::mc::summary::summarize(&out).unwrap());
+    let units: std::collections::HashMap<String, String> = summary
+        .lines()
+        .filter(|l| l.starts_with("parameter,"))
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[2].to_string(), f[3].to_string())
+        })
+        .collect();
+    assert_eq!(units["a1.bias"], "m/s^2");
+    assert_eq!(units["a1.dx"], "m");
+    // report.html: every axis in an SI unit; no other unit in its text.
+    let (report, _) = write_run_report(&out).unwrap();
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    for bad in NOT_SI {
+        assert!(!html.contains(bad), "report.html shows {bad}");
+    }
+    let si = ["1", "m/s^2", "rad", "m", "rad/s", "m/s", "s", "m/s^2/sqrt(Hz)", "m per m"];
+    for f in &report.figures {
+        for p in &f.panels {
+            for label in [&p.x_label, &p.y_label] {
+                if let Some((_, u)) = label.rsplit_once(" [") {
+                    let u = u.trim_end_matches(']');
+                    let base = u.strip_prefix("1/").unwrap_or(u); // a density per unit
+                    assert!(si.contains(&base) || u.starts_with("log10"), "{} / {}: axis unit [{u}]", f.name, label);
+                }
+            }
+        }
+    }
+    assert!(html.contains("Units: SI throughout"));
+    // identify: the same unit as summary.csv for every parameter both name.
+    let o = Command::new(env!("CARGO_BIN_EXE_gfcal"))
+        .args(["identify", "configs/hung_lee_2006_design.toml"])
+        .current_dir(repo)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let mut compared = 0;
+    for line in stdout.lines() {
+        let f: Vec<&str> = line.split_whitespace().collect();
+        if f.len() >= 4
+            && let Some(u) = units.get(f[0])
+        {
+            assert_eq!(f[1], u, "identify shows {} in {}, summary.csv in {u}", f[0], f[1]);
+            compared += 1;
+        }
+    }
+    assert!(compared >= 30, "{compared} parameters compared:\n{stdout}");
+    for bad in NOT_SI.iter().chain(&[" mg ", " ug/sqrt(Hz)"]) {
+        assert!(!stdout.contains(bad), "identify shows {bad}");
+    }
+    // diagnose: SI in its JSON, its report and its printout.
+    let log = tmp.path().join("log.parquet");
+    let sim = Command::new(env!("CARGO_BIN_EXE_gfcal"))
+        .args(["simulate-log", "configs/discrepancy_example.toml", "--out", log.to_str().unwrap()])
+        .current_dir(repo)
+        .output()
+        .unwrap();
+    assert!(sim.status.success(), "{}", String::from_utf8_lossy(&sim.stderr));
+    let json = tmp.path().join("d.json");
+    let page = tmp.path().join("d.html");
+    let d = Command::new(env!("CARGO_BIN_EXE_gfcal"))
+        .args(["diagnose", log.to_str().unwrap(), "--json", json.to_str().unwrap(), "--report", page.to_str().unwrap()])
+        .current_dir(repo)
+        .output()
+        .unwrap();
+    assert!(d.status.success(), "{}", String::from_utf8_lossy(&d.stderr));
+    let printed = String::from_utf8_lossy(&d.stdout);
+    let page = std::fs::read_to_string(&page).unwrap();
+    for bad in NOT_SI.iter().chain(&[" mg ", " ppm"]) {
+        assert!(!printed.contains(bad) && !page.contains(bad), "diagnose shows {bad}");
+    }
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    for e in v["effects"].as_array().unwrap() {
+        let u = e["unit"].as_str().unwrap();
+        assert!(!["mg", "ppm", "deg", "mm", "mrad", "ug"].iter().any(|b| u.contains(b)), "effect unit {u}");
+    }
+}
