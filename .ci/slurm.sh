@@ -12,7 +12,7 @@ cd "$(dirname "$0")/.."
 config=$1
 unsharded=$2
 python=$3
-gfcal=$PWD/target/release/gfcal
+gfcal=${CARGO_TARGET_DIR:-$PWD/target}/release/gfcal
 test -x "$gfcal" || { echo "slurm.sh: build target/release/gfcal first" >&2; exit 2; }
 t0=$(date +%s)
 
