@@ -289,7 +289,7 @@ pub fn run(
         if mine(&part_count.saturating_sub(1)) { cfg.trials_per_part - part_len(part_count - 1) } else { 0 };
     let total: u64 = (mine_count * cfg.trials_per_part).saturating_sub(short_last);
     let already: u64 = done_parts.iter().map(|&p| part_len(p)).sum();
-    let prepared: Vec<Prepared> = cfg.cells.iter().map(Prepared::new).collect();
+    let prepared: Vec<Prepared> = Prepared::for_cells(&cfg.cells);
     let mut builder = rayon::ThreadPoolBuilder::new();
     if let Some(t) = opts.threads {
         builder = builder.num_threads(t);

@@ -1,6 +1,8 @@
 //! One Monte Carlo trial: draw a true error set, simulate the calibration, estimate, compute the
 //! Cramer-Rao sigmas, and navigate with each compensation.
 
+use std::sync::Arc;
+
 use nalgebra::{DVector, Vector3};
 use rand::RngExt;
 use rand_distr::StandardNormal;
@@ -13,7 +15,7 @@ use crate::calib::measure::simulate;
 use crate::calib::pose::{self, marginal_fisher, tilted_schedule};
 use crate::calib::{Estimate, paper};
 use crate::config::calibration::Estimator;
-use crate::nav::navigate;
+use crate::nav::{MotionGrid, PlanStep, navigate_together};
 use crate::rng::trial_rng;
 use crate::sensor::noise::NoiseGenerator;
 use crate::sensor::{ArrayParams, Compensator, SimulatedArray};
@@ -54,13 +56,41 @@ pub struct TrialRecord {
 #[derive(Debug, Clone)]
 pub struct Prepared {
     nominal: ArrayParams,
+    /// The true motion along the cell's navigation (shared by cells that navigate alike).
+    grid: Arc<MotionGrid>,
     /// Why no trial of this cell can be estimated (an unidentifiable schedule), if so.
     refusal: Option<String>,
     white_density_m_s2_per_sqrt_hz: f64,
 }
 
 impl Prepared {
+    /// The preparation of every cell; cells with the same trajectory, step, horizons and gravity
+    /// share one motion grid.
+    pub fn for_cells(cells: &[Cell]) -> Vec<Self> {
+        let mut prepared: Vec<Self> = Vec::with_capacity(cells.len());
+        for cell in cells {
+            let same = cells.iter().zip(&prepared).find(|(other, _)| {
+                other.navigation.trajectory == cell.navigation.trajectory
+                    && other.navigation.step_s == cell.navigation.step_s
+                    && other.navigation.horizons_s == cell.navigation.horizons_s
+                    && other.calibration.gravity_m_s2 == cell.calibration.gravity_m_s2
+            });
+            let grid = same.map(|(_, p)| p.grid.clone());
+            prepared.push(Self::with_grid(cell, grid));
+        }
+        prepared
+    }
+
     pub fn new(cell: &Cell) -> Self {
+        Self::with_grid(cell, None)
+    }
+
+    fn with_grid(cell: &Cell, grid: Option<Arc<MotionGrid>>) -> Self {
+        let grid = grid.unwrap_or_else(|| {
+            let nav = &cell.navigation;
+            let gravity_i = Vector3::new(0.0, 0.0, -cell.calibration.gravity_m_s2);
+            Arc::new(MotionGrid::new(&nav.trajectory, &gravity_i, nav.step_s, &nav.horizons_s))
+        });
         let nominal = ArrayParams::nominal_with_scale_factors(&cell.array, &cell.errors.nominal_scale_factor);
         // A protocol's identifiability is that of each simulated recording (the gauge is fixed by
         // the calibration), not of the placeholder schedule.
@@ -70,7 +100,7 @@ impl Prepared {
                 .err()
                 .map(|e| e.to_string()),
         };
-        Self { nominal, refusal, white_density_m_s2_per_sqrt_hz: cell.noise.white.density_m_s2_per_sqrt_hz() }
+        Self { nominal, grid, refusal, white_density_m_s2_per_sqrt_hz: cell.noise.white.density_m_s2_per_sqrt_hz() }
     }
 }
 
@@ -161,24 +191,37 @@ fn record(
     };
     let nav = &cell.navigation;
     let gravity_i = Vector3::new(0.0, 0.0, -g);
+    // Every compensation navigates the same outputs (the same noise stream) along the same steps:
+    // they go in lockstep over one evaluation of the outputs, on the run's precomputed motion.
+    let mut compensators: Vec<Option<Compensator>> = nav
+        .compensations
+        .iter()
+        .map(|comp| {
+            let params = match comp {
+                Compensation::Nominal => Some(&prepared.nominal),
+                Compensation::True => Some(truth),
+                Compensation::Estimated => status.filter(|e| e.status.converged).map(|e| &e.params),
+            };
+            params.and_then(|params| Compensator::new(&cell.array, params).ok())
+        })
+        .collect();
+    let grid = &prepared.grid;
+    let mut source = SimulatedArray::new(&cell.array, truth, &nav.trajectory, gravity_i);
+    if nav.noise && !cell.noise.is_zero() {
+        let mut nav_rng = trial_rng(seed ^ NAV_SALT, stream);
+        let generator = NoiseGenerator::new(&cell.noise, cell.array.len(), 1.0 / nav.step_s, &mut nav_rng);
+        source = source.with_noise(generator, nav_rng, cell.noise.quantization_m_s2);
+    }
+    let mut fill = |i: usize, step: &PlanStep, outputs: &mut [Vec<f64>; 3]| {
+        source.fill_step(&grid.motions[i], step.t_s, step.h_s, outputs);
+    };
+    let mut active: Vec<&mut Compensator> = compensators.iter_mut().flatten().collect();
+    let mut navigated =
+        navigate_together(&grid.plan, &grid.initial, &grid.record_truths, &mut fill, &mut active, &gravity_i)
+            .into_iter();
     let mut drift = Vec::with_capacity(nav.compensations.len() * nav.horizons_s.len() * DRIFT_METRICS.len());
-    for comp in &nav.compensations {
-        let params = match comp {
-            Compensation::Nominal => Some(&prepared.nominal),
-            Compensation::True => Some(truth),
-            Compensation::Estimated => status.filter(|e| e.status.converged).map(|e| &e.params),
-        };
-        let samples = params.and_then(|params| {
-            let mut compensator = Compensator::new(&cell.array, params).ok()?;
-            let mut source = SimulatedArray::new(&cell.array, truth, &nav.trajectory, gravity_i);
-            if nav.noise && !cell.noise.is_zero() {
-                let mut nav_rng = trial_rng(seed ^ NAV_SALT, stream);
-                let generator = NoiseGenerator::new(&cell.noise, cell.array.len(), 1.0 / nav.step_s, &mut nav_rng);
-                source = source.with_noise(generator, nav_rng, cell.noise.quantization_m_s2);
-            }
-            Some(navigate(&nav.trajectory, &mut source, &mut compensator, &gravity_i, nav.step_s, &nav.horizons_s))
-        });
-        match samples {
+    for c in &compensators {
+        match c.as_ref().and_then(|_| navigated.next()) {
             Some(samples) => {
                 for d in samples {
                     drift.extend([d.rate_err_rad_s, d.attitude_err_rad, d.velocity_err_m_s, d.position_err_m]);

@@ -7,9 +7,13 @@
 //! therefore grows as t in rate, t^2 in attitude, t^3 in velocity and t^4 in position.
 
 pub mod drift;
+pub mod grid;
 pub mod navigator;
+pub mod plan;
 pub mod trajectory;
 
 pub use drift::{DriftRow, DriftSample, DriftSetup, drift_study};
-pub use navigator::{NavState, navigate};
+pub use grid::MotionGrid;
+pub use navigator::{NavState, navigate, navigate_together};
+pub use plan::{Plan, PlanStep};
 pub use trajectory::{InitialState, Segment, Trajectory, TruthState};

@@ -3,7 +3,8 @@
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 use super::drift::DriftSample;
-use super::trajectory::{InitialState, Trajectory};
+use super::plan::{Plan, PlanStep};
+use super::trajectory::{InitialState, Trajectory, TruthState};
 use crate::sensor::params::Compensator;
 
 /// Navigated state.
@@ -45,8 +46,8 @@ pub trait OutputSource {
 }
 
 /// Navigates from the trajectory's initial state with fixed steps of `step_s` (shortened to land
-/// exactly on each horizon and on each of the trajectory's breakpoints), compensating the outputs with `compensator`, and returns the drift
-/// at each horizon (sorted ascending).
+/// exactly on each horizon and on each of the trajectory's breakpoints: [`Plan`]), compensating
+/// the outputs with `compensator`, and returns the drift at each horizon (sorted ascending).
 pub fn navigate(
     trajectory: &Trajectory,
     source: &mut dyn OutputSource,
@@ -55,70 +56,110 @@ pub fn navigate(
     step_s: f64,
     horizons_s: &[f64],
 ) -> Vec<DriftSample> {
-    assert!(step_s > 0.0, "step must be positive");
-    let n = compensator.mechanization().len();
-    let mut outputs = vec![0.0; n];
-    let start = NavState::from({
-        let t = trajectory.truth(0.0);
-        InitialState { q_b_i: t.q_b_i, omega_b_rad_s: t.omega_b_rad_s, v_i_m_s: t.v_i_m_s, r_i_m: t.r_i_m }
-    });
-    let mut x = Raw { q: *start.q_b_i.quaternion(), w: start.omega_b_rad_s, v: start.v_i_m_s, r: start.r_i_m };
-    let mut t_s = 0.0;
-    let mut drift = Vec::with_capacity(horizons_s.len());
-    let mut deriv = |t: f64, x: &Raw, source: &mut dyn OutputSource, outputs: &mut [f64]| -> Raw {
-        source.outputs(t, outputs);
-        let q = UnitQuaternion::new_normalize(x.q);
-        let gravity_b = q.inverse_transform_vector(gravity_i_m_s2);
-        let acc = compensator.rigid_accel(outputs, &x.w, &gravity_b);
-        Raw {
-            q: x.q * Quaternion::from_imag(x.w) * 0.5,
-            w: acc.alpha_b_rad_s2,
-            v: q.transform_vector(&acc.accel_b_m_s2),
-            r: x.v,
+    let plan = Plan::new(trajectory, step_s, horizons_s);
+    let truths: Vec<TruthState> = plan.records.iter().map(|&(_, h)| trajectory.truth(h)).collect();
+    let mut fill = |_: usize, step: &PlanStep, outputs: &mut [Vec<f64>; 3]| {
+        source.begin_step(step.t_s, step.h_s);
+        for (t_s, out) in step.stage_times_s().into_iter().zip(outputs.iter_mut()) {
+            source.outputs(t_s, out);
         }
     };
-    let mut stops: Vec<(f64, bool)> = horizons_s.iter().map(|&h| (h, true)).collect();
-    let last_s = horizons_s.iter().copied().fold(0.0, f64::max);
-    stops.extend(trajectory.breakpoints_s().into_iter().filter(|&b| b < last_s).map(|b| (b, false)));
-    stops.sort_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
-    for &(horizon, record) in &stops {
-        loop {
-            let remaining = horizon - t_s;
-            if remaining <= 1e-9 * step_s {
-                t_s = horizon;
-                break;
+    navigate_together(&plan, &trajectory.truth(0.0), &truths, &mut fill, &mut [compensator], gravity_i_m_s2)
+        .pop()
+        .unwrap_or_default()
+}
+
+/// Raw outputs at a step's start, midpoint and end.
+pub type StageOutputs = [Vec<f64>; 3];
+
+/// Fills the raw outputs of step `i` (index, step, outputs).
+pub type StepFill<'a> = dyn FnMut(usize, &PlanStep, &mut StageOutputs) + 'a;
+
+/// Navigates several compensations of the same outputs in lockstep along `plan`: each step's raw
+/// outputs at its three distinct times (start, midpoint for RK4's stages 2 and 3, end) come from
+/// `fill(step index, step, outputs)` once and serve every compensation. Returns, per
+/// compensation, the drift at each of `plan.records` against `record_truths`; a navigation whose
+/// state stops being finite reports infinite errors from then on.
+pub fn navigate_together(
+    plan: &Plan,
+    initial: &TruthState,
+    record_truths: &[TruthState],
+    fill: &mut StepFill<'_>,
+    compensators: &mut [&mut Compensator],
+    gravity_i_m_s2: &Vector3<f64>,
+) -> Vec<Vec<DriftSample>> {
+    let n = compensators.first().map_or(0, |c| c.mechanization().len());
+    let mut outputs = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+    let start = Raw { q: *initial.q_b_i.quaternion(), w: initial.omega_b_rad_s, v: initial.v_i_m_s, r: initial.r_i_m };
+    let m = compensators.len();
+    let mut states = vec![start; m];
+    let mut active = vec![true; m];
+    let mut drift: Vec<Vec<DriftSample>> = vec![Vec::with_capacity(plan.records.len()); m];
+    let mut next_record = 0;
+    let record_due =
+        |done: usize, next_record: &mut usize, states: &[Raw], active: &[bool], drift: &mut [Vec<DriftSample>]| {
+            while *next_record < plan.records.len() && plan.records[*next_record].0 == done {
+                let horizon = plan.records[*next_record].1;
+                for c in (0..m).filter(|&c| active[c]) {
+                    let x = &states[c];
+                    let nav = NavState {
+                        q_b_i: UnitQuaternion::new_normalize(x.q),
+                        omega_b_rad_s: x.w,
+                        v_i_m_s: x.v,
+                        r_i_m: x.r,
+                    };
+                    drift[c].push(DriftSample::new(horizon, &nav, &record_truths[*next_record]));
+                }
+                *next_record += 1;
             }
-            // Take a full step unless the horizon falls within it (or just past it).
-            let h = if remaining < step_s * (1.0 + 1e-9) { remaining } else { step_s };
-            source.begin_step(t_s, h);
-            let k1 = deriv(t_s, &x, source, &mut outputs);
-            let k2 = deriv(t_s + 0.5 * h, &x.axpy(0.5 * h, &k1), source, &mut outputs);
-            let k3 = deriv(t_s + 0.5 * h, &x.axpy(0.5 * h, &k2), source, &mut outputs);
-            let k4 = deriv(t_s + h, &x.axpy(h, &k3), source, &mut outputs);
-            x = Raw {
+        };
+    for (i, step) in plan.steps.iter().enumerate() {
+        record_due(i, &mut next_record, &states, &active, &mut drift);
+        if !active.iter().any(|&a| a) {
+            break;
+        }
+        fill(i, step, &mut outputs);
+        let h = step.h_s;
+        for c in 0..m {
+            if !active[c] {
+                continue;
+            }
+            let comp = &mut *compensators[c];
+            let x = states[c];
+            let k1 = derivative(&x, &outputs[0], comp, gravity_i_m_s2);
+            let k2 = derivative(&x.axpy(0.5 * h, &k1), &outputs[1], comp, gravity_i_m_s2);
+            let k3 = derivative(&x.axpy(0.5 * h, &k2), &outputs[1], comp, gravity_i_m_s2);
+            let k4 = derivative(&x.axpy(h, &k3), &outputs[2], comp, gravity_i_m_s2);
+            let mut y = Raw {
                 q: x.q + (k1.q + k2.q * 2.0 + k3.q * 2.0 + k4.q) * (h / 6.0),
                 w: x.w + (k1.w + k2.w * 2.0 + k3.w * 2.0 + k4.w) * (h / 6.0),
                 v: x.v + (k1.v + k2.v * 2.0 + k3.v * 2.0 + k4.v) * (h / 6.0),
                 r: x.r + (k1.r + k2.r * 2.0 + k3.r * 2.0 + k4.r) * (h / 6.0),
             };
-            x.q = x.q.normalize();
-            t_s = if h == step_s { t_s + h } else { horizon };
+            y.q = y.q.normalize();
             // The rate equation is quadratic in omega (centripetal terms): with large enough
             // errors it blows up in finite time. A diverged navigation reports infinite errors.
-            if !(x.w.iter().chain(x.v.iter()).chain(x.r.iter()).all(|v| v.is_finite()) && x.q.norm().is_finite()) {
-                for &(h, record) in stops.iter().filter(|(h, _)| *h >= horizon) {
-                    if record {
-                        drift.push(DriftSample::diverged(h));
-                    }
-                }
-                return drift;
+            if y.w.iter().chain(y.v.iter()).chain(y.r.iter()).all(|v| v.is_finite()) && y.q.norm().is_finite() {
+                states[c] = y;
+            } else {
+                active[c] = false;
+                drift[c].extend(plan.records[next_record..].iter().map(|&(_, h)| DriftSample::diverged(h)));
             }
         }
-        if record {
-            let nav =
-                NavState { q_b_i: UnitQuaternion::new_normalize(x.q), omega_b_rad_s: x.w, v_i_m_s: x.v, r_i_m: x.r };
-            drift.push(DriftSample::new(horizon, &nav, &trajectory.truth(horizon)));
-        }
     }
+    record_due(plan.steps.len(), &mut next_record, &states, &active, &mut drift);
     drift
+}
+
+/// The state's derivative with the outputs `outputs` compensated by `compensator`.
+fn derivative(x: &Raw, outputs: &[f64], compensator: &mut Compensator, gravity_i_m_s2: &Vector3<f64>) -> Raw {
+    let q = UnitQuaternion::new_normalize(x.q);
+    let gravity_b = q.inverse_transform_vector(gravity_i_m_s2);
+    let acc = compensator.rigid_accel(outputs, &x.w, &gravity_b);
+    Raw {
+        q: x.q * Quaternion::from_imag(x.w) * 0.5,
+        w: acc.alpha_b_rad_s2,
+        v: q.transform_vector(&acc.accel_b_m_s2),
+        r: x.v,
+    }
 }

@@ -65,7 +65,7 @@ impl TruthState {
     }
 }
 
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 enum Attitude {
     /// Rotation about a fixed unit axis by `w0 tau + a tau^2 / 2`.
     FixedAxis { axis: Vector3<f64>, w0_rad_s: f64, a_rad_s2: f64 },
@@ -73,7 +73,7 @@ enum Attitude {
     Knots { h_s: f64, knots: Vec<UnitQuaternion<f64>> },
 }
 
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 struct Piece {
     t0_s: f64,
     segment: Segment,
@@ -82,7 +82,7 @@ struct Piece {
 }
 
 /// A reference trajectory built from segments.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Trajectory {
     pieces: Vec<Piece>,
     duration_s: f64,

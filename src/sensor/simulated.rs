@@ -6,6 +6,7 @@ use rand::Rng;
 use super::noise::{NoiseGenerator, quantize};
 use super::params::ArrayParams;
 use crate::array::Array;
+use crate::motion::RigidMotion;
 use crate::nav::navigator::OutputSource;
 use crate::nav::trajectory::Trajectory;
 
@@ -59,7 +60,23 @@ impl<R: Rng> OutputSource for SimulatedArray<'_, R> {
 
     fn outputs(&mut self, t_s: f64, out: &mut [f64]) {
         let motion = self.trajectory.truth_in_segment_of(t_s, self.step_mid_s).motion(&self.gravity_i_m_s2);
-        self.truth.outputs(self.array, &motion, out);
+        self.outputs_for(&motion, out);
+    }
+}
+
+impl<R: Rng> SimulatedArray<'_, R> {
+    /// The outputs of one step of a precomputed grid (the motion at the step's start, midpoint and
+    /// end, as `MotionGrid` holds them): the same numbers as `begin_step` then `outputs` at the
+    /// three times, without evaluating the trajectory.
+    pub fn fill_step(&mut self, motions: &[RigidMotion; 3], t_s: f64, h_s: f64, outputs: &mut [Vec<f64>; 3]) {
+        self.begin_step(t_s, h_s);
+        for (motion, out) in motions.iter().zip(outputs.iter_mut()) {
+            self.outputs_for(motion, out);
+        }
+    }
+
+    fn outputs_for(&self, motion: &RigidMotion, out: &mut [f64]) {
+        self.truth.outputs(self.array, motion, out);
         if let Some((_, _, q_m_s2)) = &self.noise {
             for ((o, s), n) in out.iter_mut().zip(&self.truth.sensors).zip(&self.step_noise_m_s2) {
                 *o = quantize(*o + s.scale_factor * n, s.scale_factor.abs() * q_m_s2);
