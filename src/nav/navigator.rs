@@ -152,14 +152,21 @@ pub fn navigate_together(
 }
 
 /// The state's derivative with the outputs `outputs` compensated by `compensator`.
+///
+/// Written out in scalars on the unnormalised quaternion `q = (s, u)` (the RK4 stages leave it
+/// slightly off unit length): a vector rotates as `R(q) v = ((s^2 - u.u) v + 2 (u.v) u + 2 s u x v)
+/// / |q|^2`, so no square root and no normalised copy are needed.
+#[inline]
 fn derivative(x: &Raw, outputs: &[f64], compensator: &mut Compensator, gravity_i_m_s2: &Vector3<f64>) -> Raw {
-    let q = UnitQuaternion::new_normalize(x.q);
-    let gravity_b = q.inverse_transform_vector(gravity_i_m_s2);
+    let s = x.q.w;
+    let u = Vector3::new(x.q.i, x.q.j, x.q.k);
+    let inv_n2 = 1.0 / (s * s + u.norm_squared());
+    let ss_uu = s * s - u.norm_squared();
+    // Gravity in body axes: R(q)^T g_i (the conjugate's rotation: u -> -u).
+    let g = gravity_i_m_s2;
+    let gravity_b = (g * ss_uu + u * (2.0 * u.dot(g)) - u.cross(g) * (2.0 * s)) * inv_n2;
     let acc = compensator.rigid_accel(outputs, &x.w, &gravity_b);
-    Raw {
-        q: x.q * Quaternion::from_imag(x.w) * 0.5,
-        w: acc.alpha_b_rad_s2,
-        v: q.transform_vector(&acc.accel_b_m_s2),
-        r: x.v,
-    }
+    let a = &acc.accel_b_m_s2;
+    let accel_i = (a * ss_uu + u * (2.0 * u.dot(a)) + u.cross(a) * (2.0 * s)) * inv_n2;
+    Raw { q: x.q * Quaternion::from_imag(x.w) * 0.5, w: acc.alpha_b_rad_s2, v: accel_i, r: x.v }
 }

@@ -2,7 +2,7 @@
 
 use nalgebra::Vector3;
 
-use crate::array::{Array, Mechanization, RankError, RigidAccel};
+use crate::array::{Array, FoldedSolve, Mechanization, RankError, RigidAccel};
 use crate::motion::RigidMotion;
 
 /// Error parameters of one accelerometer.
@@ -74,10 +74,9 @@ impl ArrayParams {
 /// for the rigid-body accelerations with the parameters' axes and positions.
 #[derive(Debug, Clone)]
 pub struct Compensator {
-    inv_scale: Vec<f64>,
-    bias_m_s2: Vec<f64>,
     mechanization: Mechanization,
-    readings: Vec<f64>,
+    /// The solve folded with the scale factors and biases (one linear map; `array::folded`).
+    folded: FoldedSolve,
 }
 
 impl Compensator {
@@ -85,12 +84,10 @@ impl Compensator {
     pub fn new(array: &Array, params: &ArrayParams) -> Result<Self, RankError> {
         let axes: Vec<_> = params.sensors.iter().map(|s| s.axis).collect();
         let mechanization = Mechanization::new(&params.positions_m(array), &axes)?;
-        Ok(Self {
-            inv_scale: params.sensors.iter().map(|s| 1.0 / s.scale_factor).collect(),
-            bias_m_s2: params.sensors.iter().map(|s| s.bias_m_s2).collect(),
-            mechanization,
-            readings: vec![0.0; params.len()],
-        })
+        let scale: Vec<f64> = params.sensors.iter().map(|s| s.scale_factor).collect();
+        let bias: Vec<f64> = params.sensors.iter().map(|s| s.bias_m_s2).collect();
+        let folded = FoldedSolve::new(&mechanization, &scale, &bias);
+        Ok(Self { mechanization, folded })
     }
 
     /// `(alpha, a_o)` in body axes from raw outputs, current body rate and gravity in body axes.
@@ -100,10 +97,7 @@ impl Compensator {
         omega_b_rad_s: &Vector3<f64>,
         gravity_b_m_s2: &Vector3<f64>,
     ) -> RigidAccel {
-        for (((m, s), k), b) in self.readings.iter_mut().zip(outputs).zip(&self.inv_scale).zip(&self.bias_m_s2) {
-            *m = s * k - b;
-        }
-        self.mechanization.solve(&self.readings, omega_b_rad_s, gravity_b_m_s2)
+        self.folded.solve(outputs, omega_b_rad_s, gravity_b_m_s2)
     }
 
     pub fn mechanization(&self) -> &Mechanization {
