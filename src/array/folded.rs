@@ -92,11 +92,8 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let cube = Array::cube(0.1).expect("cube");
         for _ in 0..200 {
-            let positions: Vec<Vector3<f64>> = cube
-                .positions_m()
-                .iter()
-                .map(|r| r + Vector3::from_fn(|_, _| rng.random_range(-2e-3..2e-3)))
-                .collect();
+            let positions: Vec<Vector3<f64>> =
+                cube.positions_m().iter().map(|r| r + Vector3::from_fn(|_, _| rng.random_range(-2e-3..2e-3))).collect();
             let axes: Vec<Vector3<f64>> =
                 cube.axes().iter().map(|a| a + Vector3::from_fn(|_, _| rng.random_range(-0.02..0.02))).collect();
             let mech = Mechanization::new(&positions, &axes).expect("full rank");
