@@ -259,6 +259,22 @@ fn parts_on_disk(dir: &Path) -> Vec<u64> {
         .unwrap_or_default()
 }
 
+/// A computed part on its way to disk, with its claim.
+struct Computed {
+    part: u64,
+    claim: claim::PartClaim,
+    records: Vec<TrialRecord>,
+    metadata: Vec<(String, String)>,
+}
+
+/// Writes a computed part (parameters first, then trials, each atomically) and gives up its claim.
+fn write_computed(cfg: &McConfig, out: &Path, c: Computed) -> Result<(), RunError> {
+    write_part(&part_path(out, "parameters", c.part), &parameters_batch(cfg, &c.records)?, &c.metadata)?;
+    write_part(&part_path(out, "trials", c.part), &trials_batch(cfg, &c.records)?, &c.metadata)?;
+    c.claim.release();
+    Ok(())
+}
+
 /// Runs the parts of this shard that are not on disk yet.
 pub fn run(
     cfg: &McConfig,
@@ -299,6 +315,7 @@ pub fn run(
     let mut trials_run = 0;
     let mut parts_written = 0;
     let mut parts_skipped = done_parts.len() as u64;
+    let mut pending: Option<Computed> = None;
     for p in (shard..part_count).step_by(shards as usize).filter(|p| !done_parts.contains(p)) {
         // One process per part: a part another process holds is left to it; one finished since
         // the listing above is skipped.
@@ -311,18 +328,28 @@ pub fn run(
         }
         let range = part_trials(p);
         let part_started = now();
-        let records: Vec<TrialRecord> = pool.install(|| {
-            range
-                .clone()
-                .into_par_iter()
-                .map(|t| {
-                    let cell = (t / cfg.trials_per_cell) as usize;
-                    let r = run_trial(&cfg.cells[cell], &prepared[cell], cfg.seed, t);
-                    observer.advance(1);
-                    r
-                })
-                .collect()
+        // The previous part is written while this one is computed.
+        let (records, written) = std::thread::scope(|scope| {
+            let writer = pending.take().map(|c| scope.spawn(|| write_computed(cfg, &opts.out, c)));
+            let records: Vec<TrialRecord> = pool.install(|| {
+                range
+                    .clone()
+                    .into_par_iter()
+                    .map(|t| {
+                        let cell = (t / cfg.trials_per_cell) as usize;
+                        let r = run_trial(&cfg.cells[cell], &prepared[cell], cfg.seed, t);
+                        observer.advance(1);
+                        r
+                    })
+                    .collect()
+            });
+            let written = writer.map(|w| w.join().unwrap_or_else(|_| Err(RunError::Threads("the part writer panicked".into()))));
+            (records, written)
         });
+        if let Some(w) = written {
+            w?;
+            parts_written += 1;
+        }
         trials_run += records.len() as u64;
         let metadata = vec![
             ("gfcal:version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
@@ -335,9 +362,10 @@ pub fn run(
             ("gfcal:part_started".to_string(), part_started),
             ("gfcal:part_finished".to_string(), now()),
         ];
-        write_part(&part_path(&opts.out, "parameters", p), &parameters_batch(cfg, &records)?, &metadata)?;
-        write_part(&part_path(&opts.out, "trials", p), &trials_batch(cfg, &records)?, &metadata)?;
-        claim.release();
+        pending = Some(Computed { part: p, claim, records, metadata });
+    }
+    if let Some(c) = pending.take() {
+        write_computed(cfg, &opts.out, c)?;
         parts_written += 1;
     }
     observer.finish();

@@ -76,8 +76,19 @@ struct Acc {
     covered: u64,
     n_cov: u64,
     worst2: f64,
-    /// `|error|`, for its median.
+    /// `|error|`, for its median, while the cell's trials are still being read.
     abs_error: Option<Histogram>,
+    /// Its median, once the cell is complete (the histogram is then dropped).
+    median_abs_error: Option<f64>,
+}
+
+impl Acc {
+    /// The cell is complete: keep the median of `|error|`, drop its histogram.
+    fn close(&mut self) {
+        if let Some(h) = self.abs_error.take() {
+            self.median_abs_error = Some(h.quantile(0.5));
+        }
+    }
 }
 
 const BINS_PER_DECADE: f64 = 500.0;
@@ -136,9 +147,22 @@ impl Histogram {
 pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
     let mut params: BTreeMap<(u32, String), Acc> = BTreeMap::new();
     let mut order: Vec<(u32, String)> = Vec::new();
+    // Keys whose cell may still have trials to come. Parts hold trials in order and cells are
+    // contiguous, so once a batch starts past a cell, that cell's histograms are reduced to their
+    // medians: memory holds the histograms of the cells of one part, whatever the run's size.
+    let mut open: Vec<(u32, String)> = Vec::new();
     for file in parts(&dir.join("parameters")) {
         for batch in read_batches(&file)? {
             let cell = column::<UInt32Array>(&batch, "cell", &file)?;
+            if let Some(first) = cell.iter().flatten().min() {
+                let (done, keep): (Vec<_>, Vec<_>) = open.drain(..).partition(|k| k.0 < first);
+                open = keep;
+                for k in done {
+                    if let Some(a) = params.get_mut(&k) {
+                        a.close();
+                    }
+                }
+            }
             let name = column::<StringArray>(&batch, "name", &file)?;
             let unit = column::<StringArray>(&batch, "unit", &file)?;
             let err = column::<Float64Array>(&batch, "error", &file)?;
@@ -147,7 +171,8 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
             for i in 0..batch.num_rows() {
                 let key = (cell.value(i), name.value(i).to_string());
                 let a = params.entry(key.clone()).or_insert_with(|| {
-                    order.push(key);
+                    order.push(key.clone());
+                    open.push(key);
                     Acc { unit: unit.value(i).to_string(), ..Acc::default() }
                 });
                 let e = err.value(i);
@@ -250,7 +275,10 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
                 crb_sigma: if a.n_crb > 0 { crb } else { f64::NAN },
                 ratio: if a.n_z > 0 { (a.z2 / a.n_z as f64).sqrt() } else { f64::NAN },
                 coverage_95: if a.n_cov > 0 { a.covered as f64 / a.n_cov as f64 } else { f64::NAN },
-                median_abs_error: a.abs_error.as_ref().map_or(f64::NAN, |h| h.quantile(0.5)),
+                median_abs_error: a
+                    .median_abs_error
+                    .or_else(|| a.abs_error.as_ref().map(|h| h.quantile(0.5)))
+                    .unwrap_or(f64::NAN),
                 worst_share: if a.sum2 > 0.0 { a.worst2 / a.sum2 } else { f64::NAN },
             }
         })
