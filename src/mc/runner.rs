@@ -343,7 +343,8 @@ pub fn run(
                     })
                     .collect()
             });
-            let written = writer.map(|w| w.join().unwrap_or_else(|_| Err(RunError::Threads("the part writer panicked".into()))));
+            let written =
+                writer.map(|w| w.join().unwrap_or_else(|_| Err(RunError::Threads("the part writer panicked".into()))));
             (records, written)
         });
         if let Some(w) = written {

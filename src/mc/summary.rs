@@ -145,6 +145,19 @@ impl Histogram {
 
 /// Reads every part of `dir/trials` and `dir/parameters`.
 pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
+    // The two tables are independent: read them at the same time.
+    let (parameters, drift) = std::thread::scope(|scope| {
+        let parameters = scope.spawn(|| summarize_parameters(dir));
+        let drift = summarize_drift(dir);
+        let parameters = parameters.join().unwrap_or_else(|p| std::panic::resume_unwind(p));
+        (parameters, drift)
+    });
+    let (trials, drift) = drift?;
+    Ok(Summary { trials, parameters: parameters?, drift })
+}
+
+/// The per-parameter table, from `dir/parameters/`.
+fn summarize_parameters(dir: &Path) -> Result<Vec<ParameterSummary>, ParquetIoError> {
     let mut params: BTreeMap<(u32, String), Acc> = BTreeMap::new();
     let mut order: Vec<(u32, String)> = Vec::new();
     // Keys whose cell may still have trials to come. Parts hold trials in order and cells are
@@ -202,6 +215,37 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
             }
         }
     }
+    order.sort_by_key(|k| k.0);
+    let parameters = order
+        .iter()
+        .map(|k| {
+            let a = &params[k];
+            let n = a.n.max(1) as f64;
+            let rmse = (a.sum2 / n).sqrt();
+            let crb = (a.crb2 / a.n_crb.max(1) as f64).sqrt();
+            ParameterSummary {
+                cell: k.0,
+                name: k.1.clone(),
+                unit: a.unit.clone(),
+                n: a.n,
+                bias: if a.n > 0 { a.sum / n } else { f64::NAN },
+                rmse: if a.n > 0 { rmse } else { f64::NAN },
+                crb_sigma: if a.n_crb > 0 { crb } else { f64::NAN },
+                ratio: if a.n_z > 0 { (a.z2 / a.n_z as f64).sqrt() } else { f64::NAN },
+                coverage_95: if a.n_cov > 0 { a.covered as f64 / a.n_cov as f64 } else { f64::NAN },
+                median_abs_error: a
+                    .median_abs_error
+                    .or_else(|| a.abs_error.as_ref().map(|h| h.quantile(0.5)))
+                    .unwrap_or(f64::NAN),
+                worst_share: if a.sum2 > 0.0 { a.worst2 / a.sum2 } else { f64::NAN },
+            }
+        })
+        .collect();
+    Ok(parameters)
+}
+
+/// The trial count and the drift table, from `dir/trials/`.
+fn summarize_drift(dir: &Path) -> Result<(u64, Vec<DriftSummary>), ParquetIoError> {
     let mut hist: BTreeMap<(u32, String), Histogram> = BTreeMap::new();
     let mut drift_order: Vec<(u32, String)> = Vec::new();
     let mut drift = Vec::new();
@@ -256,34 +300,8 @@ pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
         }
     }
     finalize(&mut hist, &mut drift_order, u32::MAX, &mut drift);
-    order.sort_by_key(|k| k.0);
     drift.sort_by_key(|d| d.cell);
-    let parameters = order
-        .iter()
-        .map(|k| {
-            let a = &params[k];
-            let n = a.n.max(1) as f64;
-            let rmse = (a.sum2 / n).sqrt();
-            let crb = (a.crb2 / a.n_crb.max(1) as f64).sqrt();
-            ParameterSummary {
-                cell: k.0,
-                name: k.1.clone(),
-                unit: a.unit.clone(),
-                n: a.n,
-                bias: if a.n > 0 { a.sum / n } else { f64::NAN },
-                rmse: if a.n > 0 { rmse } else { f64::NAN },
-                crb_sigma: if a.n_crb > 0 { crb } else { f64::NAN },
-                ratio: if a.n_z > 0 { (a.z2 / a.n_z as f64).sqrt() } else { f64::NAN },
-                coverage_95: if a.n_cov > 0 { a.covered as f64 / a.n_cov as f64 } else { f64::NAN },
-                median_abs_error: a
-                    .median_abs_error
-                    .or_else(|| a.abs_error.as_ref().map(|h| h.quantile(0.5)))
-                    .unwrap_or(f64::NAN),
-                worst_share: if a.sum2 > 0.0 { a.worst2 / a.sum2 } else { f64::NAN },
-            }
-        })
-        .collect();
-    Ok(Summary { trials, parameters, drift })
+    Ok((trials, drift))
 }
 
 /// The summary as one CSV table (`table` is `parameter` or `drift`; empty fields where a
