@@ -26,10 +26,10 @@ impl StepStats {
     /// Adds one sample of every output (Welford's running mean and sum of squares).
     pub fn push(&mut self, values: &[f64]) {
         self.samples += 1;
-        let count = self.samples as f64;
+        let inv_count = 1.0 / self.samples as f64;
         for ((v, m), ss) in values.iter().zip(&mut self.mean).zip(&mut self.within_ss) {
             let delta = v - *m;
-            *m += delta / count;
+            *m += delta * inv_count;
             *ss += delta * (v - *m);
         }
     }

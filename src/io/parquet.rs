@@ -249,7 +249,7 @@ pub fn write_part(path: &Path, batch: &RecordBatch, metadata: &[(String, String)
         kv.iter().map(|k| (k.key.clone(), k.value.clone().unwrap_or_default())).collect();
     let schema = Arc::new(batch.schema().as_ref().clone().with_metadata(schema_metadata));
     let batch = batch.clone().with_schema(schema.clone()).map_err(|e| batch_error(&shown, e))?;
-    let zstd = ZstdLevel::try_new(3).map_err(|e| batch_error(&shown, e))?;
+    let zstd = ZstdLevel::try_new(1).map_err(|e| batch_error(&shown, e))?;
     let props =
         WriterProperties::builder().set_compression(Compression::ZSTD(zstd)).set_key_value_metadata(Some(kv)).build();
     let result = (|| {
