@@ -91,7 +91,10 @@ pub fn run(
         outcome.parts_skipped,
         if outcome.complete { "" } else { "; other shards' parts are still missing" }
     );
-    let summary = summarize_dir(&out).context("cannot summarize the run")?;
+    let summary = match outcome.summary {
+        Some(summary) => summary,
+        None => summarize_dir(&out).context("cannot summarize the run")?,
+    };
     write_summary(&out, &summary)?;
     print_summary(&cfg, &summary, outcome.complete);
     no_estimate_is_a_failure(&out, &summary)

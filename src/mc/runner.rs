@@ -9,12 +9,14 @@
 //! others join it, and each part is computed by one process.
 
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 use std::time::SystemTime;
 
 use rayon::prelude::*;
 
 use super::claim::{self, Entry, RunLock};
 use super::config::McConfig;
+use super::summary::{Summarizer, Summary};
 use super::trial::{Prepared, TrialRecord, run_trial};
 use crate::io::parquet::{ParquetIoError, is_whole_part, parameters_batch, trials_batch, write_part};
 
@@ -57,6 +59,9 @@ pub struct RunOutcome {
     pub trials_run: u64,
     /// Every part of the run (all shards) is on disk.
     pub complete: bool,
+    /// The run's summary, when this call wrote every part itself (built from the batches as they
+    /// were written, so the folder need not be read back); otherwise `summary::summarize`.
+    pub summary: Option<Summary>,
 }
 
 /// Why a run could not proceed.
@@ -267,11 +272,27 @@ struct Computed {
     metadata: Vec<(String, String)>,
 }
 
-/// Writes a computed part (parameters first, then trials, each atomically) and gives up its claim.
-fn write_computed(cfg: &McConfig, out: &Path, c: Computed) -> Result<(), RunError> {
-    write_part(&part_path(out, "parameters", c.part), &parameters_batch(cfg, &c.records)?, &c.metadata)?;
-    write_part(&part_path(out, "trials", c.part), &trials_batch(cfg, &c.records)?, &c.metadata)?;
+/// Writes a computed part (parameters first, then trials, each atomically), gives up its claim,
+/// and adds the part to the summary being built, if any.
+fn write_computed(
+    cfg: &McConfig,
+    out: &Path,
+    c: Computed,
+    summarizer: &Mutex<Option<Summarizer>>,
+) -> Result<(), RunError> {
+    let parameters = parameters_batch(cfg, &c.records)?;
+    let trials = trials_batch(cfg, &c.records)?;
+    let trials_path = part_path(out, "trials", c.part);
+    write_part(&part_path(out, "parameters", c.part), &parameters, &c.metadata)?;
+    write_part(&trials_path, &trials, &c.metadata)?;
     c.claim.release();
+    let mut guard = summarizer.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    if let Some(s) = guard.as_mut()
+        && s.add_part(&parameters, &trials, &trials_path).is_err()
+    {
+        // Cannot happen for batches gfcal built; the summary is then read back from disk.
+        *guard = None;
+    }
     Ok(())
 }
 
@@ -316,11 +337,19 @@ pub fn run(
     let mut parts_written = 0;
     let mut parts_skipped = done_parts.len() as u64;
     let mut pending: Option<Computed> = None;
+    // Parts go to disk in order; when this call writes every part of the run, the summary is
+    // built from the batches on their way out.
+    let summarizer = Mutex::new((shards == 1 && done_parts.is_empty()).then(Summarizer::default));
     for p in (shard..part_count).step_by(shards as usize).filter(|p| !done_parts.contains(p)) {
         // One process per part: a part another process holds is left to it; one finished since
         // the listing above is skipped.
-        let Some(claim) = claim::claim_part(&opts.out, p).map_err(io_err(&opts.out))? else { continue };
+        let Some(claim) = claim::claim_part(&opts.out, p).map_err(io_err(&opts.out))? else {
+            // Another process computes this part: this one cannot summarize the run from memory.
+            *summarizer.lock().unwrap_or_else(|poisoned| poisoned.into_inner()) = None;
+            continue;
+        };
         if done(p) {
+            *summarizer.lock().unwrap_or_else(|poisoned| poisoned.into_inner()) = None;
             claim.release();
             parts_skipped += 1;
             observer.advance(part_len(p));
@@ -330,7 +359,7 @@ pub fn run(
         let part_started = now();
         // The previous part is written while this one is computed.
         let (records, written) = std::thread::scope(|scope| {
-            let writer = pending.take().map(|c| scope.spawn(|| write_computed(cfg, &opts.out, c)));
+            let writer = pending.take().map(|c| scope.spawn(|| write_computed(cfg, &opts.out, c, &summarizer)));
             let records: Vec<TrialRecord> = pool.install(|| {
                 range
                     .clone()
@@ -366,7 +395,7 @@ pub fn run(
         pending = Some(Computed { part: p, claim, records, metadata });
     }
     if let Some(c) = pending.take() {
-        write_computed(cfg, &opts.out, c)?;
+        write_computed(cfg, &opts.out, c, &summarizer)?;
         parts_written += 1;
     }
     observer.finish();
@@ -378,5 +407,10 @@ pub fn run(
             + "\n";
         crate::io::write_atomic(&run_file, body.as_bytes()).map_err(io_err(&run_file))?;
     }
-    Ok(RunOutcome { parts_written, parts_skipped, trials_run, complete })
+    let summary = if complete {
+        summarizer.into_inner().unwrap_or_else(|poisoned| poisoned.into_inner()).map(Summarizer::finish)
+    } else {
+        None
+    };
+    Ok(RunOutcome { parts_written, parts_skipped, trials_run, complete, summary })
 }

@@ -11,7 +11,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use arrow_array::{Array, Float64Array, StringArray, UInt32Array};
+use arrow_array::{Array, Float64Array, RecordBatch, StringArray, UInt32Array};
 
 use crate::io::parquet::{ParquetIoError, column, part_files as parts, read_batches};
 
@@ -56,7 +56,7 @@ pub struct DriftSummary {
     pub p05: f64,
 }
 
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct Summary {
     pub trials: u64,
     pub parameters: Vec<ParameterSummary>,
@@ -147,121 +147,168 @@ impl Histogram {
 pub fn summarize(dir: &Path) -> Result<Summary, ParquetIoError> {
     // The two tables are independent: read them at the same time.
     let (parameters, drift) = std::thread::scope(|scope| {
-        let parameters = scope.spawn(|| summarize_parameters(dir));
-        let drift = summarize_drift(dir);
+        let parameters = scope.spawn(|| -> Result<ParameterTable, ParquetIoError> {
+            let mut table = ParameterTable::default();
+            for file in parts(&dir.join("parameters")) {
+                for batch in read_batches(&file)? {
+                    table.add(&batch, &file)?;
+                }
+            }
+            Ok(table)
+        });
+        let drift = (|| -> Result<DriftTable, ParquetIoError> {
+            let mut table = DriftTable::default();
+            for file in parts(&dir.join("trials")) {
+                for batch in read_batches(&file)? {
+                    table.add(&batch, &file)?;
+                }
+            }
+            Ok(table)
+        })();
         let parameters = parameters.join().unwrap_or_else(|p| std::panic::resume_unwind(p));
         (parameters, drift)
     });
-    let (trials, drift) = drift?;
-    Ok(Summary { trials, parameters: parameters?, drift })
+    Ok(Summarizer { parameters: parameters?, drift: drift? }.finish())
 }
 
-/// The per-parameter table, from `dir/parameters/`.
-fn summarize_parameters(dir: &Path) -> Result<Vec<ParameterSummary>, ParquetIoError> {
-    let mut params: BTreeMap<(u32, String), Acc> = BTreeMap::new();
-    let mut order: Vec<(u32, String)> = Vec::new();
-    // Keys whose cell may still have trials to come. Parts hold trials in order and cells are
-    // contiguous, so once a batch starts past a cell, that cell's histograms are reduced to their
-    // medians: memory holds the histograms of the cells of one part, whatever the run's size.
-    let mut open: Vec<(u32, String)> = Vec::new();
-    for file in parts(&dir.join("parameters")) {
-        for batch in read_batches(&file)? {
-            let cell = column::<UInt32Array>(&batch, "cell", &file)?;
-            if let Some(first) = cell.iter().flatten().min() {
-                let (done, keep): (Vec<_>, Vec<_>) = open.drain(..).partition(|k| k.0 < first);
-                open = keep;
-                for k in done {
-                    if let Some(a) = params.get_mut(&k) {
-                        a.close();
-                    }
-                }
-            }
-            let name = column::<StringArray>(&batch, "name", &file)?;
-            let unit = column::<StringArray>(&batch, "unit", &file)?;
-            let err = column::<Float64Array>(&batch, "error", &file)?;
-            let crb = column::<Float64Array>(&batch, "crb_sigma", &file)?;
-            let es = column::<Float64Array>(&batch, "estimated_sigma", &file)?;
-            for i in 0..batch.num_rows() {
-                let key = (cell.value(i), name.value(i).to_string());
-                let a = params.entry(key.clone()).or_insert_with(|| {
-                    order.push(key.clone());
-                    open.push(key);
-                    Acc { unit: unit.value(i).to_string(), ..Acc::default() }
-                });
-                let e = err.value(i);
-                if e.is_finite() {
-                    a.n += 1;
-                    a.sum += e;
-                    a.sum2 += e * e;
-                    a.worst2 = a.worst2.max(e * e);
-                    a.abs_error.get_or_insert_with(|| Histogram::new(String::new())).add(e);
-                    let s = es.value(i);
-                    if s.is_finite() {
-                        a.n_cov += 1;
-                        if e.abs() <= 1.96 * s {
-                            a.covered += 1;
-                        }
-                    }
-                }
-                let c = crb.value(i);
-                if c.is_finite() {
-                    a.n_crb += 1;
-                    a.crb2 += c * c;
-                    if c > 0.0 && e.is_finite() {
-                        a.n_z += 1;
-                        a.z2 += (e / c).powi(2);
-                    }
+/// The summary built part by part, in part order (from files, or from the batches a run writes).
+#[derive(Default)]
+pub struct Summarizer {
+    parameters: ParameterTable,
+    drift: DriftTable,
+}
+
+impl Summarizer {
+    /// Adds one part's parameters and trials batches (`path` names the part in messages).
+    pub fn add_part(
+        &mut self,
+        parameters: &RecordBatch,
+        trials: &RecordBatch,
+        path: &Path,
+    ) -> Result<(), ParquetIoError> {
+        self.parameters.add(parameters, path)?;
+        self.drift.add(trials, path)
+    }
+
+    pub fn finish(self) -> Summary {
+        let (trials, drift) = self.drift.finish();
+        Summary { trials, parameters: self.parameters.finish(), drift }
+    }
+}
+
+/// The per-parameter table.
+#[derive(Default)]
+struct ParameterTable {
+    params: BTreeMap<(u32, String), Acc>,
+    order: Vec<(u32, String)>,
+    /// Keys whose cell may still have trials to come. Parts hold trials in order and cells are
+    /// contiguous, so once a batch starts past a cell, that cell's histograms are reduced to their
+    /// medians: memory holds the histograms of the cells of one part, whatever the run's size.
+    open: Vec<(u32, String)>,
+}
+
+impl ParameterTable {
+    fn add(&mut self, batch: &RecordBatch, file: &Path) -> Result<(), ParquetIoError> {
+        let (params, order, open) = (&mut self.params, &mut self.order, &mut self.open);
+        let cell = column::<UInt32Array>(batch, "cell", file)?;
+        if let Some(first) = cell.iter().flatten().min() {
+            let (done, keep): (Vec<_>, Vec<_>) = open.drain(..).partition(|k| k.0 < first);
+            *open = keep;
+            for k in done {
+                if let Some(a) = params.get_mut(&k) {
+                    a.close();
                 }
             }
         }
-    }
-    order.sort_by_key(|k| k.0);
-    let parameters = order
-        .iter()
-        .map(|k| {
-            let a = &params[k];
-            let n = a.n.max(1) as f64;
-            let rmse = (a.sum2 / n).sqrt();
-            let crb = (a.crb2 / a.n_crb.max(1) as f64).sqrt();
-            ParameterSummary {
-                cell: k.0,
-                name: k.1.clone(),
-                unit: a.unit.clone(),
-                n: a.n,
-                bias: if a.n > 0 { a.sum / n } else { f64::NAN },
-                rmse: if a.n > 0 { rmse } else { f64::NAN },
-                crb_sigma: if a.n_crb > 0 { crb } else { f64::NAN },
-                ratio: if a.n_z > 0 { (a.z2 / a.n_z as f64).sqrt() } else { f64::NAN },
-                coverage_95: if a.n_cov > 0 { a.covered as f64 / a.n_cov as f64 } else { f64::NAN },
-                median_abs_error: a
-                    .median_abs_error
-                    .or_else(|| a.abs_error.as_ref().map(|h| h.quantile(0.5)))
-                    .unwrap_or(f64::NAN),
-                worst_share: if a.sum2 > 0.0 { a.worst2 / a.sum2 } else { f64::NAN },
+        let name = column::<StringArray>(batch, "name", file)?;
+        let unit = column::<StringArray>(batch, "unit", file)?;
+        let err = column::<Float64Array>(batch, "error", file)?;
+        let crb = column::<Float64Array>(batch, "crb_sigma", file)?;
+        let es = column::<Float64Array>(batch, "estimated_sigma", file)?;
+        for i in 0..batch.num_rows() {
+            let key = (cell.value(i), name.value(i).to_string());
+            let a = params.entry(key.clone()).or_insert_with(|| {
+                order.push(key.clone());
+                open.push(key);
+                Acc { unit: unit.value(i).to_string(), ..Acc::default() }
+            });
+            let e = err.value(i);
+            if e.is_finite() {
+                a.n += 1;
+                a.sum += e;
+                a.sum2 += e * e;
+                a.worst2 = a.worst2.max(e * e);
+                a.abs_error.get_or_insert_with(|| Histogram::new(String::new())).add(e);
+                let s = es.value(i);
+                if s.is_finite() {
+                    a.n_cov += 1;
+                    if e.abs() <= 1.96 * s {
+                        a.covered += 1;
+                    }
+                }
             }
-        })
-        .collect();
-    Ok(parameters)
+            let c = crb.value(i);
+            if c.is_finite() {
+                a.n_crb += 1;
+                a.crb2 += c * c;
+                if c > 0.0 && e.is_finite() {
+                    a.n_z += 1;
+                    a.z2 += (e / c).powi(2);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn finish(mut self) -> Vec<ParameterSummary> {
+        self.order.sort_by_key(|k| k.0);
+        let params = &self.params;
+        self.order
+            .iter()
+            .map(|k| {
+                let a = &params[k];
+                let n = a.n.max(1) as f64;
+                let rmse = (a.sum2 / n).sqrt();
+                let crb = (a.crb2 / a.n_crb.max(1) as f64).sqrt();
+                ParameterSummary {
+                    cell: k.0,
+                    name: k.1.clone(),
+                    unit: a.unit.clone(),
+                    n: a.n,
+                    bias: if a.n > 0 { a.sum / n } else { f64::NAN },
+                    rmse: if a.n > 0 { rmse } else { f64::NAN },
+                    crb_sigma: if a.n_crb > 0 { crb } else { f64::NAN },
+                    ratio: if a.n_z > 0 { (a.z2 / a.n_z as f64).sqrt() } else { f64::NAN },
+                    coverage_95: if a.n_cov > 0 { a.covered as f64 / a.n_cov as f64 } else { f64::NAN },
+                    median_abs_error: a
+                        .median_abs_error
+                        .or_else(|| a.abs_error.as_ref().map(|h| h.quantile(0.5)))
+                        .unwrap_or(f64::NAN),
+                    worst_share: if a.sum2 > 0.0 { a.worst2 / a.sum2 } else { f64::NAN },
+                }
+            })
+            .collect()
+    }
 }
 
-/// The trial count and the drift table, from `dir/trials/`.
-fn summarize_drift(dir: &Path) -> Result<(u64, Vec<DriftSummary>), ParquetIoError> {
-    let mut hist: BTreeMap<(u32, String), Histogram> = BTreeMap::new();
-    let mut drift_order: Vec<(u32, String)> = Vec::new();
-    let mut drift = Vec::new();
-    let mut trials = 0;
-    // Parts hold trials in order and cells are contiguous runs of trials: once a file starts past
-    // a cell, that cell's histograms are final and are reduced to their quantiles, so memory
-    // holds at most the cells of one part whatever the number of cells.
-    let finalize = |hist: &mut BTreeMap<(u32, String), Histogram>,
-                    order: &mut Vec<(u32, String)>,
-                    below: u32,
-                    out: &mut Vec<DriftSummary>| {
-        let (done, keep): (Vec<_>, Vec<_>) = order.drain(..).partition(|k| k.0 < below);
-        *order = keep;
+/// The trial count and the drift table. Parts hold trials in order and cells are contiguous
+/// runs of trials: once a batch starts past a cell, that cell's histograms are final and are
+/// reduced to their quantiles, so memory holds at most the cells of one part.
+#[derive(Default)]
+struct DriftTable {
+    hist: BTreeMap<(u32, String), Histogram>,
+    order: Vec<(u32, String)>,
+    drift: Vec<DriftSummary>,
+    trials: u64,
+}
+
+impl DriftTable {
+    fn finalize(&mut self, below: u32) {
+        let (done, keep): (Vec<_>, Vec<_>) = self.order.drain(..).partition(|k| k.0 < below);
+        self.order = keep;
         for k in done {
-            if let Some(h) = hist.remove(&k) {
-                out.push(DriftSummary {
+            if let Some(h) = self.hist.remove(&k) {
+                self.drift.push(DriftSummary {
                     cell: k.0,
                     column: k.1,
                     unit: h.unit.clone(),
@@ -273,35 +320,40 @@ fn summarize_drift(dir: &Path) -> Result<(u64, Vec<DriftSummary>), ParquetIoErro
                 });
             }
         }
-    };
-    for file in parts(&dir.join("trials")) {
-        for batch in read_batches(&file)? {
-            trials += batch.num_rows() as u64;
-            let cell = column::<UInt32Array>(&batch, "cell", &file)?;
-            if let Some(first) = cell.iter().flatten().min() {
-                finalize(&mut hist, &mut drift_order, first, &mut drift);
+    }
+
+    fn add(&mut self, batch: &RecordBatch, file: &Path) -> Result<(), ParquetIoError> {
+        self.trials += batch.num_rows() as u64;
+        let cell = column::<UInt32Array>(batch, "cell", file)?;
+        if let Some(first) = cell.iter().flatten().min() {
+            self.finalize(first);
+        }
+        let schema = batch.schema();
+        for (k, f) in schema.fields().iter().enumerate() {
+            if !f.name().contains("_err_") || !f.name().ends_with('s') || !f.name().contains("_at_") {
+                continue;
             }
-            let schema = batch.schema();
-            for (k, f) in schema.fields().iter().enumerate() {
-                if !f.name().contains("_err_") || !f.name().ends_with('s') || !f.name().contains("_at_") {
-                    continue;
-                }
-                let Some(values) = batch.column(k).as_any().downcast_ref::<Float64Array>() else { continue };
-                for i in 0..batch.num_rows() {
-                    let key = (cell.value(i), f.name().clone());
-                    hist.entry(key.clone())
-                        .or_insert_with(|| {
-                            drift_order.push(key);
-                            Histogram::new(f.metadata().get("unit").cloned().unwrap_or_default())
-                        })
-                        .add(values.value(i));
-                }
+            let Some(values) = batch.column(k).as_any().downcast_ref::<Float64Array>() else { continue };
+            for i in 0..batch.num_rows() {
+                let key = (cell.value(i), f.name().clone());
+                let order = &mut self.order;
+                self.hist
+                    .entry(key.clone())
+                    .or_insert_with(|| {
+                        order.push(key);
+                        Histogram::new(f.metadata().get("unit").cloned().unwrap_or_default())
+                    })
+                    .add(values.value(i));
             }
         }
+        Ok(())
     }
-    finalize(&mut hist, &mut drift_order, u32::MAX, &mut drift);
-    drift.sort_by_key(|d| d.cell);
-    Ok((trials, drift))
+
+    fn finish(mut self) -> (u64, Vec<DriftSummary>) {
+        self.finalize(u32::MAX);
+        self.drift.sort_by_key(|d| d.cell);
+        (self.trials, self.drift)
+    }
 }
 
 /// The summary as one CSV table (`table` is `parameter` or `drift`; empty fields where a

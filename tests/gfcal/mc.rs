@@ -98,8 +98,14 @@ fn same_tables_on_1_and_2_threads_and_in_3_shards() {
     for i in 0..3 {
         let o = run(&cfg, &cfg_path, &opts(&sharded, 2, (i, 3)), &Silent).unwrap();
         assert_eq!(o.complete, i == 2, "complete only when the last shard is done");
+        assert!(o.summary.is_none(), "a shard does not summarize the run from memory");
     }
     same_tables(&one, &sharded);
+    // The summary a run builds from the batches it writes is the one read back from its files
+    // (4 cells, so the per-cell reductions between parts are exercised).
+    let from_files = gfcal::mc::summary::summarize(&one).unwrap();
+    assert_eq!(o.summary.as_ref(), Some(&from_files));
+    assert_eq!(from_files.trials, 120);
     // Rows, columns and provenance.
     let trials = table(&one, "trials");
     let rows: usize = trials.iter().flat_map(|(_, b)| b.iter().map(|b| b.num_rows())).sum();
