@@ -172,24 +172,6 @@ fn target_rng(target: &str) -> ChaCha8Rng {
     )
 }
 
-/// Inputs `wanted` of a target's stream (as `fuzz` generates them).
-fn replay(
-    target: &str,
-    seeds: &[(Vec<u8>, &'static str)],
-    text: bool,
-    wanted: &[usize],
-) -> Vec<(Vec<u8>, &'static str)> {
-    let mut rng = target_rng(target);
-    let last = wanted.iter().copied().max().unwrap_or(0);
-    (0..=last)
-        .filter_map(|k| {
-            let (seed, ext) = &seeds[k % seeds.len()];
-            let data = mutate(seed, &mut rng, text);
-            wanted.contains(&k).then_some((data, *ext))
-        })
-        .collect()
-}
-
 /// What a target did.
 #[derive(Debug, Default)]
 struct Tally {
