@@ -308,7 +308,7 @@ pub fn diagnose(
     alpha: f64,
     temp_ref_c: f64,
 ) -> anyhow::Result<()> {
-    use gfcal::discrepancy::diagnose::{DiagnoseError, DiagnoseSettings, Verdict, diagnose};
+    use gfcal::discrepancy::diagnose::{Correlation, DiagnoseError, DiagnoseSettings, Explanation, Verdict, diagnose};
     use gfcal::discrepancy::log::CalibrationLog;
     if !(alpha > 0.0 && alpha < 1.0) {
         return Err(InputError::Other(format!("--alpha must be between 0 and 1, got {alpha}")).into());
@@ -336,9 +336,17 @@ pub fn diagnose(
         if log.has_temperature() { ", temperature" } else { "" },
         b.noise_sigma_m_s2
     );
+    let held_out = |h: Option<f64>| {
+        h.map(|v| format!("; held-out prediction error {v:.3} (1 is noise alone)"))
+            .unwrap_or_else(|| "; no step can be left out and predicted (no held-out error)".into())
+    };
     println!(
-        "baseline fit: chi2/dof = {:.3} ({:.1} on {} dof, p = {:.2e}); held-out prediction error {:.3} (1 is noise alone)",
-        d.gap_before, b.chi2, b.dof, b.p_value, d.held_out_before
+        "baseline fit: chi2/dof = {:.3} ({:.1} on {} dof, p = {:.2e}){}",
+        d.gap_before,
+        b.chi2,
+        b.dof,
+        b.p_value,
+        held_out(d.held_out_before)
     );
     let n = log.n;
     let per_step = |rows: &[Vec<f64>]| {
@@ -378,9 +386,25 @@ pub fn diagnose(
         head.push_str(&format!(" {:>7}", format!("s{j}")));
     }
     println!("{head}");
-    for (name, r) in &correlations {
-        let cells: String = r.iter().map(|v| format!(" {v:>7.2}")).collect();
-        println!("  {name:<12}{cells}");
+    for row in &correlations {
+        match &row.correlation {
+            Correlation::PerAccelerometer(r) => {
+                let cells: String = r
+                    .iter()
+                    .map(|v| v.map(|v| format!(" {v:>7.2}")).unwrap_or_else(|| format!(" {:>7}", "-")))
+                    .collect();
+                println!("  {:<12}{cells}", row.regressor);
+            }
+            Correlation::Constant(v) if row.regressor == "temperature" => {
+                println!(
+                    "  {:<12} the temperature is constant ({v} degC) in this log: it says nothing of temperature effects",
+                    row.regressor
+                )
+            }
+            Correlation::Constant(v) => {
+                println!("  {:<12} constant ({v}) in this log: no correlation", row.regressor)
+            }
+        }
     }
     println!("\neffects named:");
     if d.findings.is_empty() {
@@ -402,6 +426,12 @@ pub fn diagnose(
                 .map(|c| format!("; CONFOUNDED with {c}: this log cannot tell them apart"))
                 .unwrap_or_default()
         );
+        if f.unseen_directions > 0 {
+            println!(
+                "    ({} direction(s) of its parameters are absorbed by the baseline model and not fitted: the values are those with none of them)",
+                f.unseen_directions
+            );
+        }
     }
     println!("\ncandidates the log cannot separate from the model:");
     for (label, v) in &d.verdicts {
@@ -409,14 +439,15 @@ pub fn diagnose(
             println!("  {label}: confounded with {}", with.join(", "));
         }
     }
-    println!(
-        "\nafter: chi2/dof = {:.3} (p = {:.2e}); held-out prediction error {:.3}",
-        d.gap_after, d.p_value_after, d.held_out_after
-    );
-    if d.unmodelled_effect_remains {
-        println!(
+    println!("\nafter: chi2/dof = {:.3} (p = {:.2e}){}", d.gap_after, d.p_value_after, held_out(d.held_out_after));
+    match d.explanation() {
+        Explanation::Partial => println!(
+            "a partial explanation: the named effects lower the gap, but what is left is still above the noise (an effect the library does not have remains)"
+        ),
+        Explanation::Unexplained => println!(
             "an unmodelled effect remains: the gap is above the noise and no candidate of the library explains it"
-        );
+        ),
+        Explanation::Complete | Explanation::NothingToExplain => {}
     }
     if let Some(path) = json {
         let verdict_json = |v: &Verdict| match v {
@@ -424,6 +455,7 @@ pub fn diagnose(
             Verdict::Tested { delta_chi2, p_value } => {
                 serde_json::json!({"delta_chi2": delta_chi2, "p_value": p_value})
             }
+            Verdict::NoSigma => serde_json::json!({"no_sigma": true}),
         };
         let body = serde_json::json!({
             "log": log_path.display().to_string(),
@@ -435,6 +467,7 @@ pub fn diagnose(
             "held_out_before": d.held_out_before,
             "held_out_after": d.held_out_after,
             "unmodelled_effect_remains": d.unmodelled_effect_remains,
+            "explanation": d.explanation().as_str(),
             "effects": d.findings.iter().map(|f| serde_json::json!({
                 "name": f.name,
                 "accelerometer": f.accelerometer.map(|j| j + 1),
@@ -445,8 +478,13 @@ pub fn diagnose(
                 "gap_after": f.gap_after,
                 "p_value": f.p_value,
                 "confounded_with": f.confounded_with,
+                "unseen_directions": f.unseen_directions,
             })).collect::<Vec<_>>(),
-            "regressor_correlations": correlations.iter().map(|(name, r)| serde_json::json!({"regressor": name, "per_accelerometer": r})).collect::<Vec<_>>(),
+            "regressor_correlations": correlations.iter().map(|row| match &row.correlation {
+                Correlation::PerAccelerometer(r) => serde_json::json!({"regressor": row.regressor, "per_accelerometer": r}),
+                Correlation::Constant(v) if row.regressor == "temperature" => serde_json::json!({"regressor": row.regressor, "constant_c": v}),
+                Correlation::Constant(v) => serde_json::json!({"regressor": row.regressor, "constant": v}),
+            }).collect::<Vec<_>>(),
             "candidates": d.verdicts.iter().map(|(l, v)| serde_json::json!({"candidate": l, "verdict": verdict_json(v)})).collect::<Vec<_>>(),
             "per_step": log.steps.iter().enumerate().map(|(i, s)| serde_json::json!({
                 "step": s.step,

@@ -120,9 +120,29 @@ use crate::calib::schedule::Schedule;
 pub struct Candidate {
     pub effect: Box<dyn Effect>,
     pub accelerometer: Option<usize>,
+    /// For an effect of several parameters some directions of which the model absorbs (a common
+    /// rotation of every pose is a rotation of the array frame): an orthonormal basis of the
+    /// directions the log can see, `parameters = basis * fitted`. `None`: every direction.
+    pub basis: Option<DMatrix<f64>>,
 }
 
 impl Candidate {
+    /// The same effect on the same accelerometer, with every direction.
+    fn full(&self) -> Candidate {
+        let effect = super::effect::by_name(self.effect.name()).unwrap_or_else(|| unreachable!("a library effect"));
+        Candidate { effect, accelerometer: self.accelerometer, basis: None }
+    }
+
+    /// Parameters fitted: the seen directions' count.
+    fn fitted(&self, statics: usize, spins: usize) -> usize {
+        self.basis.as_ref().map_or_else(|| self.effect.parameters(statics, spins), |b| b.ncols())
+    }
+
+    /// Directions the model absorbs (not fitted).
+    pub fn unseen(&self, statics: usize, spins: usize) -> usize {
+        self.effect.parameters(statics, spins) - self.fitted(statics, spins)
+    }
+
     pub fn label(&self) -> String {
         match self.accelerometer {
             Some(j) => format!("{} (accelerometer {})", self.effect.name(), j + 1),
@@ -175,7 +195,7 @@ impl<'a> Extended<'a> {
         let mut p = layout.len();
         for c in effects {
             offsets.push(p);
-            p += c.effect.parameters(statics, spins);
+            p += c.fitted(statics, spins);
         }
         let mut x = DVector::zeros(p);
         x.rows_mut(0, layout.len()).copy_from(x_baseline);
@@ -227,7 +247,8 @@ impl<'a> Extended<'a> {
         }
         let (mut static_index, mut spin_index) = (0, 0);
         // One gradient buffer, sized for the largest effect, reused for every row and effect.
-        let mut grad_buffer = vec![0.0; x.len() - self.layout.len()];
+        let widest = self.effects.iter().map(|c| c.effect.parameters(self.statics, self.spins)).max().unwrap_or(0);
+        let mut grad_buffer = vec![0.0; widest];
         for (s, step) in self.schedule.steps().iter().enumerate() {
             let motion = &self.motions[s];
             for j in 0..n {
@@ -254,14 +275,27 @@ impl<'a> Extended<'a> {
                 let mut e = 0.0;
                 for (c, &off) in self.effects.iter().zip(&self.offsets) {
                     let m = c.effect.parameters(self.statics, self.spins);
+                    let q = c.fitted(self.statics, self.spins);
                     let applies = c.accelerometer.is_none_or(|a| a == j);
                     let grad = &mut grad_buffer[..m];
                     grad.iter_mut().for_each(|g| *g = 0.0);
+                    let fitted = &x.as_slice()[off..off + q];
                     if applies {
-                        e += c.effect.term(&ctx, &x.as_slice()[off..off + m], grad);
+                        e += match &c.basis {
+                            None => c.effect.term(&ctx, fitted, grad),
+                            Some(b) => {
+                                let full: Vec<f64> =
+                                    (0..m).map(|r| (0..q).map(|i| b[(r, i)] * fitted[i]).sum()).collect();
+                                c.effect.term(&ctx, &full, grad)
+                            }
+                        };
                     }
                     if let Some(reg) = regressors.as_deref_mut() {
-                        for (i, gv) in grad.iter().enumerate() {
+                        for i in 0..q {
+                            let gv = match &c.basis {
+                                None => grad[i],
+                                Some(b) => (0..m).map(|r| grad[r] * b[(r, i)]).sum(),
+                            };
                             reg[off - self.layout.len() + i][s * n + j] = self.weight[s][j] * k * gv;
                         }
                     }
@@ -341,6 +375,33 @@ pub enum Verdict {
     ConfoundedWithModel(Vec<String>),
     /// Fitted: the fall in chi-square, its p-value, and the held-out gain.
     Tested { delta_chi2: f64, p_value: f64 },
+    /// Fitted, but its parameters have no finite standard deviation (the extended model's
+    /// information is singular there): never named.
+    NoSigma,
+}
+
+/// How much of the gap the named effects explain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Explanation {
+    /// Nothing named, and the baseline's gap is what noise explains.
+    NothingToExplain,
+    /// Effects named, and what is left is what noise explains.
+    Complete,
+    /// Effects named, but the gap left is still above the noise: they are part of the answer.
+    Partial,
+    /// Nothing named, and the gap is above the noise.
+    Unexplained,
+}
+
+impl Explanation {
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Explanation::NothingToExplain => "nothing to explain",
+            Explanation::Complete => "complete",
+            Explanation::Partial => "partial",
+            Explanation::Unexplained => "unexplained",
+        }
+    }
 }
 
 /// One named effect of a diagnosis.
@@ -357,6 +418,9 @@ pub struct Finding {
     pub p_value: f64,
     /// Another candidate that explains the same gap equally well, if any.
     pub confounded_with: Option<String>,
+    /// Directions of the effect's parameters that the model absorbs (not fitted; the values are
+    /// the effect with none of them). 0 for most effects.
+    pub unseen_directions: usize,
 }
 
 /// The model at one point of a diagnosis: the baseline, then after the noise model, then after
@@ -383,14 +447,27 @@ pub struct Diagnosis {
     pub gap_after: f64,
     pub p_value_after: f64,
     /// Mean squared whitened error of each step's mean predicted with that step left out, before
-    /// and after the named effects (steps the model cannot do without are skipped).
-    pub held_out_before: f64,
-    pub held_out_after: f64,
+    /// and after the named effects (steps the model cannot do without are skipped; `None` when no
+    /// step can be left out).
+    pub held_out_before: Option<f64>,
+    pub held_out_after: Option<f64>,
     /// The gap is still above the noise and no candidate helps.
     pub unmodelled_effect_remains: bool,
     pub per_step_after: Vec<Vec<f64>>,
     /// The model before and after each addition, in order.
     pub stages: Vec<Stage>,
+}
+
+impl Diagnosis {
+    /// Whether the named effects are the answer, part of it, or there was nothing to name.
+    pub fn explanation(&self) -> Explanation {
+        match (self.findings.is_empty(), self.unmodelled_effect_remains) {
+            (true, false) => Explanation::NothingToExplain,
+            (true, true) => Explanation::Unexplained,
+            (false, true) => Explanation::Partial,
+            (false, false) => Explanation::Complete,
+        }
+    }
 }
 
 /// Settings of a diagnosis.
@@ -422,11 +499,11 @@ pub fn candidates(n: usize, has_temperature: bool) -> Vec<Candidate> {
             Scope::PerAccelerometer => {
                 for j in 0..n {
                     if let Some(effect) = super::effect::by_name(e.name()) {
-                        out.push(Candidate { effect, accelerometer: Some(j) });
+                        out.push(Candidate { effect, accelerometer: Some(j), basis: None });
                     }
                 }
             }
-            Scope::Shared => out.push(Candidate { effect: e, accelerometer: None }),
+            Scope::Shared => out.push(Candidate { effect: e, accelerometer: None, basis: None }),
         }
     }
     out
@@ -470,6 +547,17 @@ fn fit_extended(
         covariance,
         whitened: r,
     }
+}
+
+fn statics_of(schedule: &Schedule) -> usize {
+    schedule.steps().iter().filter(|s| !s.is_spin()).count()
+}
+
+/// The standard deviation of parameter `i` of a fit, when its covariance gives one (a singular
+/// information matrix gives NaN or a non-positive variance: no sigma).
+fn sigma_of(fit: &ExtendedFit, i: usize) -> Option<f64> {
+    let v = fit.covariance[(i, i)];
+    (v.is_finite() && v > 0.0).then(|| v.sqrt())
 }
 
 fn p_chi2(chi2: f64, dof: usize) -> f64 {
@@ -519,11 +607,12 @@ pub fn diagnose(
             gap_after: f64::NAN,
             p_value: strongest,
             confounded_with: None,
+            unseen_directions: 0,
         });
     }
     let sigma_owned: Vec<f64> = inflation.iter().map(|f| baseline.noise_sigma_m_s2 * f.sqrt()).collect();
     let sigma = sigma_owned.as_slice();
-    let pool = candidates(array.len(), log.has_temperature());
+    let mut pool = candidates(array.len(), log.has_temperature());
     let mut included: Vec<usize> = Vec::new();
     let mut current = fit_extended(&layout, &schedule, log, &meas, &[], &baseline.estimate.x, sigma, s);
     let gap_before = baseline.chi2_per_dof();
@@ -581,11 +670,13 @@ pub fn diagnose(
         // Each remaining candidate's regressors, with the current model's span removed.
         let mut residual_regs: Vec<(usize, DMatrix<f64>, f64)> = Vec::new();
         verdicts.clear();
+        let mut bases: Vec<(usize, Option<DMatrix<f64>>)> = Vec::new();
         for (ci, c) in pool.iter().enumerate() {
             if included.contains(&ci) {
                 continue;
             }
-            let one = [c];
+            let c_full = c.full();
+            let one = [&c_full];
             let probe = Extended::new(
                 &layout,
                 &schedule,
@@ -608,8 +699,19 @@ pub fn diagnose(
                     .push((c.label(), Verdict::ConfoundedWithModel(vec!["nothing: the log never excites it".into()])));
                 continue;
             }
+            // The unexplained part of its unit-normalised regressors: with no direction left
+            // (largest singular value below 1e-6) the effect is confounded with the model; with
+            // some directions inside the model's span (a common rotation of every pose), only the
+            // others are fitted (the basis below). Before, a 24-parameter pose effect with such a
+            // direction was fitted whole, with sigmas of tens of radians.
+            let unit = DMatrix::from_fn(rmat.nrows(), rmat.ncols(), |r, k| {
+                let c = rmat.column(k).norm();
+                if c > 0.0 { rmat[(r, k)] / c } else { 0.0 }
+            });
             let perp = &rmat - &u * (u.transpose() * &rmat);
-            let ratio = perp.norm() / norm;
+            let unit_perp = &unit - &u * (u.transpose() * &unit);
+            let svd_perp = unit_perp.clone().svd(false, true);
+            let ratio = svd_perp.singular_values.max();
             if ratio < 1e-6 {
                 // Name what absorbs it: the least-squares coefficients on the model's columns.
                 let beta = jm
@@ -625,7 +727,28 @@ pub fn diagnose(
                 verdicts.push((c.label(), Verdict::ConfoundedWithModel(with)));
                 continue;
             }
+            // The directions the model absorbs (in parameter units: the columns were scaled by
+            // their norms) are left out of the fit; the rest is tested.
+            let basis = svd_perp.v_t.as_ref().and_then(|vt| {
+                let seen: Vec<usize> =
+                    (0..svd_perp.singular_values.len()).filter(|&i| svd_perp.singular_values[i] >= 1e-6).collect();
+                if seen.len() == rmat.ncols() {
+                    return None;
+                }
+                let scale = |r: usize| {
+                    let c = rmat.column(r).norm();
+                    if c > 0.0 { 1.0 / c } else { 0.0 }
+                };
+                let b = DMatrix::from_fn(rmat.ncols(), seen.len(), |r, i| vt[(seen[i], r)] * scale(r));
+                // Orthonormal, so that the reported parameters are the least-norm ones.
+                Some(b.qr().q())
+            });
+            bases.push((ci, basis));
             residual_regs.push((ci, perp, ratio));
+        }
+        drop(model);
+        for (ci, basis) in bases {
+            pool[ci].basis = basis;
         }
         // Test every separable candidate.
         let mut tested: Vec<(usize, ExtendedFit, f64, f64)> = Vec::new();
@@ -634,6 +757,10 @@ pub fn diagnose(
             effects.push(&pool[*ci]);
             let fit = fit_extended(&layout, &schedule, log, &meas, &effects, &current.x, sigma, s);
             let dp = fit.x.len() - current.x.len();
+            if !(0..dp).all(|i| sigma_of(&fit, current.x.len() + i).is_some()) {
+                verdicts.push((pool[*ci].label(), Verdict::NoSigma));
+                continue;
+            }
             let delta = (current.chi2 - fit.chi2).max(0.0);
             let p = p_chi2(delta, dp);
             verdicts.push((pool[*ci].label(), Verdict::Tested { delta_chi2: delta, p_value: p }));
@@ -656,13 +783,25 @@ pub fn diagnose(
             })
         });
         let off = current.x.len();
-        let m = fit.x.len() - off;
+        let q = fit.x.len() - off;
         let c = &pool[ci];
+        // The effect's parameters (the seen directions mapped back through the basis) and their sigmas.
+        let fitted = fit.x.rows(off, q).into_owned();
+        let cov = fit.covariance.view((off, off), (q, q)).into_owned();
+        let (value, variance): (Vec<f64>, Vec<f64>) = match &c.basis {
+            None => (fitted.iter().copied().collect(), (0..q).map(|i| cov[(i, i)]).collect()),
+            Some(b) => {
+                let v = b * &fitted;
+                let full = b * cov * b.transpose();
+                (v.iter().copied().collect(), (0..b.nrows()).map(|i| full[(i, i)]).collect())
+            }
+        };
         findings.push(Finding {
             name: c.effect.name().to_string(),
             accelerometer: c.accelerometer,
-            value: fit.x.rows(off, m).iter().copied().collect(),
-            sigma: (0..m).map(|i| fit.covariance[(off + i, off + i)].max(0.0).sqrt()).collect(),
+            value,
+            sigma: variance.iter().map(|v| if v.is_finite() && *v > 0.0 { v.sqrt() } else { f64::NAN }).collect(),
+            unseen_directions: c.unseen(statics_of(&schedule), schedule.len() - statics_of(&schedule)),
             unit: c.effect.unit().to_string(),
             gap_before: current.chi2 / current.dof as f64,
             gap_after: fit.chi2 / fit.dof as f64,
@@ -710,7 +849,7 @@ fn held_out(
     x: &DVector<f64>,
     sigma: &[f64],
     s: &DiagnoseSettings,
-) -> f64 {
+) -> Option<f64> {
     let n = layout.array().len();
     let mut total = 0.0;
     let mut count = 0usize;
@@ -743,7 +882,7 @@ fn held_out(
             count += 1;
         }
     }
-    if count == 0 { f64::NAN } else { total / count as f64 }
+    (count > 0 && total.is_finite()).then(|| total / count as f64)
 }
 
 /// Test of one accelerometer's within-step samples for correlated noise at a cluster size `m`
@@ -769,16 +908,24 @@ pub struct AllanTest {
 
 /// The correlated-noise tests of every accelerometer at cluster sizes of 10, 50 and 200 samples
 /// (those that fit at least twice in a step).
+///
+/// Deterministic regressors that vary within a step are tried first: each accelerometer's
+/// samples are cleared of their pooled within-step regression on time and (with a temperature
+/// column) temperature, each taken about its step mean, before the scatter that is left is tested.
+/// A bias that follows the temperature within steps is then the deterministic loop's
+/// `bias_temperature`, not correlated noise. The removed regressors vary slowly within a step, so
+/// they are charged to the numerator's degrees of freedom.
 pub fn allan_tests(log: &CalibrationLog, k: &[f64]) -> Vec<AllanTest> {
     use statrs::distribution::FisherSnedecor;
     let n = log.n;
     let mut out = Vec::new();
     for (j, kj) in k.iter().enumerate().take(n) {
+        let (cleared, removed) = within_step_deterministic_removed(log, j, *kj);
         for m in [10usize, 50, 200] {
             let (mut between, mut within) = (0.0, 0.0);
             let (mut df1, mut df2) = (0usize, 0usize);
             let mut dt = 0.0;
-            for s in &log.steps {
+            for (step_index, s) in log.steps.iter().enumerate() {
                 let samples = s.samples();
                 let clusters = samples / m;
                 if clusters < 2 {
@@ -787,7 +934,7 @@ pub fn allan_tests(log: &CalibrationLog, k: &[f64]) -> Vec<AllanTest> {
                 if samples > 1 {
                     dt = (s.t_s[samples - 1] - s.t_s[0]) / (samples - 1) as f64;
                 }
-                let x: Vec<f64> = (0..clusters * m).map(|i| s.outputs[i * n + j] / kj).collect();
+                let x = &cleared[step_index][..clusters * m];
                 let means: Vec<f64> = x.chunks_exact(m).map(|c| c.iter().sum::<f64>() / m as f64).collect();
                 let grand = means.iter().sum::<f64>() / clusters as f64;
                 between += means.iter().map(|c| m as f64 * (c - grand).powi(2)).sum::<f64>();
@@ -799,6 +946,8 @@ pub fn allan_tests(log: &CalibrationLog, k: &[f64]) -> Vec<AllanTest> {
                 df1 += clusters - 1;
                 df2 += clusters * (m - 1);
             }
+            // The deterministic regressors' parameters come out of the cluster means.
+            df1 -= removed.min(df1);
             if df1 < 10 || df2 == 0 || within <= 0.0 {
                 continue;
             }
@@ -819,17 +968,88 @@ pub fn allan_tests(log: &CalibrationLog, k: &[f64]) -> Vec<AllanTest> {
     out
 }
 
+/// Accelerometer `j`'s input-referred samples (outputs over `k`) of every step, cleared of their
+/// pooled within-step least-squares regression on time and temperature (each about its step
+/// mean; regressors that never vary within a step are left out), and how many regressors were
+/// removed.
+fn within_step_deterministic_removed(log: &CalibrationLog, j: usize, k: f64) -> (Vec<Vec<f64>>, usize) {
+    let n = log.n;
+    let centred = |v: &[f64]| -> Vec<f64> {
+        let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
+        v.iter().map(|x| x - mean).collect()
+    };
+    let x: Vec<Vec<f64>> =
+        log.steps.iter().map(|s| (0..s.samples()).map(|i| s.outputs[i * n + j] / k).collect()).collect();
+    let mut regressors: Vec<Vec<Vec<f64>>> = vec![log.steps.iter().map(|s| centred(&s.t_s)).collect()];
+    if log.has_temperature() {
+        regressors.push(log.steps.iter().map(|s| centred(&s.temp_c)).collect());
+    }
+    // Keep the regressors that vary within steps, and only those the others do not already span.
+    let mut kept: Vec<Vec<Vec<f64>>> = Vec::new();
+    for r in regressors {
+        let energy: f64 = r.iter().flatten().map(|v| v * v).sum();
+        if energy.is_nan() || energy <= 0.0 {
+            continue;
+        }
+        kept.push(r);
+        let p = kept.len();
+        let gram = DMatrix::from_fn(p, p, |a, b| {
+            kept[a].iter().flatten().zip(kept[b].iter().flatten()).map(|(u, v)| u * v).sum::<f64>()
+        });
+        let sv = gram.singular_values();
+        if sv.min() <= 1e-10 * sv.max() {
+            kept.pop();
+        }
+    }
+    let p = kept.len();
+    if p == 0 {
+        return (x, 0);
+    }
+    let gram = DMatrix::from_fn(p, p, |a, b| {
+        kept[a].iter().flatten().zip(kept[b].iter().flatten()).map(|(u, v)| u * v).sum::<f64>()
+    });
+    let rhs =
+        DVector::from_fn(p, |a, _| kept[a].iter().flatten().zip(x.iter().flatten()).map(|(u, v)| u * v).sum::<f64>());
+    let Some(beta) = gram.lu().solve(&rhs) else { return (x, 0) };
+    let cleared = x
+        .iter()
+        .enumerate()
+        .map(|(s, xs)| {
+            xs.iter().enumerate().map(|(i, v)| v - (0..p).map(|a| beta[a] * kept[a][s][i]).sum::<f64>()).collect()
+        })
+        .collect();
+    (cleared, p)
+}
+
+/// What one regressor shows in the baseline's residuals.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Correlation {
+    /// Correlation with each accelerometer's whitened step residuals (`None` where that
+    /// accelerometer's regressor or residuals do not vary).
+    PerAccelerometer(Vec<Option<f64>>),
+    /// The regressor has this one value in every step (e.g. a temperature column that never
+    /// changes): the log says nothing about it.
+    Constant(f64),
+}
+
+/// One row of [`regressor_correlations`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct RegressorCorrelation {
+    pub regressor: String,
+    pub correlation: Correlation,
+}
+
 /// Correlation of the baseline's whitened step residuals with simple regressors, per
 /// accelerometer: where the disagreement lines up (a large |r| on `input^2` points at a quadratic
-/// scale factor, on `time` at a drift, on `rate^2` at a spin effect). Rows: (regressor,
-/// correlation per accelerometer); NaN where the regressor does not vary.
+/// scale factor, on `time` at a drift, on `rate^2` at a spin effect). A regressor with one value
+/// in every step is reported as constant.
 pub fn regressor_correlations(
     log: &CalibrationLog,
     array: &Array,
     fit: &BaselineFit,
     form: Form,
     g_m_s2: f64,
-) -> Vec<(String, Vec<f64>)> {
+) -> Vec<RegressorCorrelation> {
     let Ok(layout) = Layout::new(array, form) else { return vec![] };
     let Ok(schedule) = log.schedule() else { return vec![] };
     let n = array.len();
@@ -853,7 +1073,7 @@ pub fn regressor_correlations(
         let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
         let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
         let syy: f64 = y.iter().map(|b| (b - my).powi(2)).sum();
-        if sxx > 0.0 && syy > 0.0 { sxy / (sxx * syy).sqrt() } else { f64::NAN }
+        (sxx > 0.0 && syy > 0.0).then(|| sxy / (sxx * syy).sqrt()).filter(|r| r.is_finite())
     };
     let mut rows = Vec::new();
     type Regressor<'r> = Box<dyn Fn(usize, usize) -> f64 + 'r>;
@@ -869,14 +1089,24 @@ pub fn regressor_correlations(
         if name == "temperature" && !log.has_temperature() {
             continue;
         }
-        let per_accel = (0..n)
-            .map(|j| {
-                let x: Vec<f64> = (0..schedule.len()).map(|s| f(s, j)).collect();
-                let z: Vec<f64> = fit.whitened.iter().map(|z| z[j]).collect();
-                corr(&x, &z)
-            })
-            .collect();
-        rows.push((name.to_string(), per_accel));
+        let first = f(0, 0);
+        // One value throughout (to rounding: step means of a constant column).
+        let tolerance = 1e-9 * first.abs().max(1.0);
+        let constant = (0..schedule.len()).all(|s| (0..n).all(|j| (f(s, j) - first).abs() <= tolerance));
+        let correlation = if constant {
+            Correlation::Constant(first)
+        } else {
+            Correlation::PerAccelerometer(
+                (0..n)
+                    .map(|j| {
+                        let x: Vec<f64> = (0..schedule.len()).map(|s| f(s, j)).collect();
+                        let z: Vec<f64> = fit.whitened.iter().map(|z| z[j]).collect();
+                        corr(&x, &z)
+                    })
+                    .collect(),
+            )
+        };
+        rows.push(RegressorCorrelation { regressor: name.to_string(), correlation });
     }
     rows
 }

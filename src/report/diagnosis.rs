@@ -14,7 +14,7 @@ use statrs::distribution::{ChiSquared, ContinuousCDF};
 use super::ReportError;
 use super::html::Page;
 use super::plot::{Figure, Item, Panel, render};
-use crate::discrepancy::diagnose::{Diagnosis, Verdict};
+use crate::discrepancy::diagnose::{Diagnosis, Explanation, Verdict};
 use crate::discrepancy::log::CalibrationLog;
 
 /// A rendered diagnosis report.
@@ -94,10 +94,15 @@ pub fn diagnosis_report(
 ) -> Result<DiagnosisReport, ReportError> {
     let mut page = Page::new(&format!("gfcal diagnosis: {log_name}"));
     let b = &d.baseline;
+    let held_out = match (d.held_out_before, d.held_out_after) {
+        (Some(before), Some(after)) => {
+            format!(" Held-out prediction error (1 is noise alone): {before:.3} before, {after:.3} after.")
+        }
+        _ => " No step can be left out and predicted, so there is no held-out error.".to_string(),
+    };
     page.text(&format!(
         "{} steps, {} accelerometers{}; noise within steps {:.4e} m/s^2 per sample. Baseline chi2/dof {:.3} \
-         (p = {:.2e}), after the named effects {:.3} (p = {:.2e}). Held-out prediction error (1 is noise alone): \
-         {:.3} before, {:.3} after.",
+         (p = {:.2e}), after the named effects {:.3} (p = {:.2e}).{held_out}",
         log.steps.len(),
         log.n,
         if log.has_temperature() { ", with temperature" } else { "" },
@@ -106,13 +111,16 @@ pub fn diagnosis_report(
         b.p_value,
         d.gap_after,
         d.p_value_after,
-        d.held_out_before,
-        d.held_out_after
     ));
-    if d.unmodelled_effect_remains {
-        page.note(
+    match d.explanation() {
+        Explanation::Partial => page.note(
+            "A partial explanation: the named effects lower the gap, but what is left is still above the noise. \
+             An effect the library does not have remains.",
+        ),
+        Explanation::Unexplained => page.note(
             "An unmodelled effect remains: the gap is above the noise and no candidate of the library explains it.",
-        );
+        ),
+        Explanation::Complete | Explanation::NothingToExplain => {}
     }
     page.heading(2, "Effects named");
     if d.findings.is_empty() {
@@ -154,7 +162,7 @@ pub fn diagnosis_report(
         .iter()
         .filter_map(|(label, v)| match v {
             Verdict::ConfoundedWithModel(with) => Some((vec![label.clone(), with.join(", ")], false)),
-            Verdict::Tested { .. } => None,
+            Verdict::Tested { .. } | Verdict::NoSigma => None,
         })
         .collect();
     if !confounded.is_empty() {
