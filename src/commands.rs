@@ -504,3 +504,138 @@ pub fn diagnose(
     }
     Ok(())
 }
+
+/// A real recording rather than a calibration log: a readable table without the log's commanded
+/// pose (`up_x`). An unreadable file is left to the log reader, which says why.
+pub fn is_recording(path: &Path) -> bool {
+    gfcal::io::table::Table::read(path).is_ok_and(|t| t.index("up_x").is_none())
+}
+
+/// `gfcal diagnose RECORDING --array FILE [--held-out ...]`: the baseline's gap on real recordings.
+pub fn diagnose_recordings(
+    path: &Path,
+    array_path: &Path,
+    held_out: &[std::path::PathBuf],
+    json: Option<&Path>,
+    report: Option<&Path>,
+    alpha: f64,
+) -> anyhow::Result<()> {
+    use gfcal::discrepancy::diagnose::Explanation;
+    use gfcal::discrepancy::recorded::{Gap, RecordedError, diagnose_recordings};
+    use gfcal::selfcal::calibrate::{CalibrateError, CalibrateSettings};
+    use gfcal::selfcal::fit::FitError;
+    use gfcal::selfcal::recording::Recording;
+    if !(alpha > 0.0 && alpha < 1.0) {
+        return Err(InputError::Other(format!("--alpha must be between 0 and 1, got {alpha}")).into());
+    }
+    if report.is_some() {
+        return Err(InputError::Other(
+            "--report is not available for recordings yet (use --json, and `gfcal calibrate --report`)".into(),
+        )
+        .into());
+    }
+    let array = gfcal::config::array::load_recording_array(array_path).map_err(InputError::Config)?;
+    let rec = Recording::read(path, &array).map_err(|e| InputError::Other(e.to_string()))?;
+    let mut others = Vec::new();
+    for other in held_out {
+        let o = Recording::read(other, &array)
+            .map_err(|e| InputError::Other(format!("held-out recording for {}: {e}", path.display())))?;
+        rec.same_array_as(&o).map_err(|e| InputError::Other(e.to_string()))?;
+        others.push(o);
+    }
+    let settings = CalibrateSettings::default();
+    let d = diagnose_recordings(&rec, &array, &others, &settings, alpha).map_err(|e| -> anyhow::Error {
+        match e {
+            RecordedError::Calibrate(CalibrateError::Fit { source: FitError::Singular(_), .. }) => {
+                anyhow::anyhow!("{e}")
+            }
+            other => InputError::Other(other.to_string()).into(),
+        }
+    })?;
+    let show = |g: &Gap| {
+        format!(
+            "static chi2/dof {:.3}, dynamic {}",
+            g.static_chi2_dof,
+            g.dynamic.map(|v| format!("{v:.1}")).unwrap_or_else(|| "- (no rotation phase)".into())
+        )
+    };
+    println!(
+        "recording {}: {} static interval(s), {} dynamic sample(s); the gap (1 is noise alone; dynamic: (residual RMS / static noise RMS)^2)",
+        path.display(),
+        d.calibration.static_data.means.nrows(),
+        d.calibration.dynamic_index.len()
+    );
+    println!("  fitting recording, baseline: {}", show(&d.fitting));
+    for h in &d.held_out {
+        println!("  held out {}:", h.recording.display());
+        println!("    baseline (poses and motion refitted): {}", show(&h.before));
+        println!("    with the named effects:               {}", show(&h.after));
+    }
+    println!("\neffects named (each lowers the gap on every held-out recording):");
+    if d.findings.is_empty() {
+        println!("  none");
+    }
+    for f in &d.findings {
+        let largest = f.value.iter().zip(&f.sigma).max_by(|a, b| a.0.abs().total_cmp(&b.0.abs()));
+        println!(
+            "  {}: {} accelerometer(s); largest {}; p <= {:.1e} on every held-out recording",
+            f.name,
+            f.value.len(),
+            largest.map(|(v, s)| format!("{v:.4e} +- {s:.1e} {}", f.unit)).unwrap_or_default(),
+            f.p_value_largest
+        );
+    }
+    for (name, why) in &d.not_named {
+        println!("  not named: {name}: {why}");
+    }
+    match d.explanation() {
+        Explanation::Partial => println!(
+            "\na partial explanation: what is left is still above the noise (unexplained, this large: the numbers after the named effects above)"
+        ),
+        Explanation::Unexplained => println!("\nunexplained: the gap is above the noise and nothing tried lowers it"),
+        Explanation::Complete => println!("\nthe named effects explain the gap to the noise"),
+        Explanation::NothingToExplain => println!("\nthe baseline explains the recordings to the noise"),
+    }
+    if let Some(json_path) = json {
+        let gap = |g: &Gap| {
+            serde_json::json!({
+                "static_chi2_dof": g.static_chi2_dof,
+                "dynamic_gap": g.dynamic,
+            })
+        };
+        let body = serde_json::json!({
+            "recording": path.display().to_string(),
+            "array": array_path.display().to_string(),
+            "gap_before": d.fitting.static_chi2_dof,
+            "gap_after": d.fitting.static_chi2_dof,
+            "dynamic_gap_before": d.fitting.dynamic,
+            "dynamic_gap_after": d.fitting.dynamic,
+            "fitting": {"before": gap(&d.fitting), "after": gap(&d.fitting)},
+            "held_out": d.held_out.iter().map(|h| serde_json::json!({
+                "recording": h.recording.display().to_string(),
+                "gap_before": h.before.static_chi2_dof,
+                "gap_after": h.after.static_chi2_dof,
+                "dynamic_gap_before": h.before.dynamic,
+                "dynamic_gap_after": h.after.dynamic,
+                "bias_change_m_s2": h.bias_change_m_s2,
+                "bias_change_sigma_m_s2": h.bias_change_sigma_m_s2,
+            })).collect::<Vec<_>>(),
+            "effects": d.findings.iter().map(|f| serde_json::json!({
+                "name": f.name,
+                "accelerometer": f.accelerometer.map(|j| j + 1),
+                "value": f.value,
+                "sigma": f.sigma,
+                "unit": f.unit,
+                "what": f.what,
+                "p_value_largest": f.p_value_largest,
+            })).collect::<Vec<_>>(),
+            "not_named": d.not_named.iter().map(|(n, w)| serde_json::json!({"name": n, "why": w})).collect::<Vec<_>>(),
+            "explanation": d.explanation().as_str(),
+            "alpha": alpha,
+        });
+        gfcal::io::write_atomic(json_path, (serde_json::to_string_pretty(&body)? + "\n").as_bytes())
+            .with_context(|| format!("cannot write {}", json_path.display()))?;
+        eprintln!("wrote {}", json_path.display());
+    }
+    Ok(())
+}

@@ -83,13 +83,20 @@ enum Command {
         out: PathBuf,
     },
     /// Fit the baseline model to a calibration log, find where it disagrees, and name the missing
-    /// effects (see README: the log format).
+    /// effects (see README: the log format). Also takes a real recording (a table without the
+    /// log's `up_x` column) with the array file `gfcal calibrate` takes: it is segmented and
+    /// fitted as there, and scored on the `--held-out` recordings.
     Diagnose {
-        /// The log (.csv or .parquet).
+        /// The log or recording (.csv or .parquet).
         log: PathBuf,
-        /// Array file (TOML) [default: the paper's cube, rho = 0.1 m].
+        /// Array file (TOML) [default: the paper's cube, rho = 0.1 m]; a recording needs one with
+        /// its columns (as for `gfcal calibrate`).
         #[arg(long)]
         array: Option<PathBuf>,
+        /// Recordings of the same array to score the fitting recording's model on (only the pose
+        /// directions, the motion and the per-recording effects refitted there).
+        #[arg(long, num_args = 1..)]
+        held_out: Vec<PathBuf>,
         /// Also write the diagnosis as JSON.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -246,8 +253,20 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Report { dir } => runs::report(&dir),
         Command::Sensitivity { dir, max_trials } => runs::sensitivity(&dir, max_trials),
         Command::SimulateLog { config, out } => commands::simulate_log(&config, &out),
-        Command::Diagnose { log, array, json, report, alpha, reference_temp_c } => {
-            commands::diagnose(&log, array.as_deref(), json.as_deref(), report.as_deref(), alpha, reference_temp_c)
+        Command::Diagnose { log, array, held_out, json, report, alpha, reference_temp_c } => {
+            if let Some(array_path) = array.as_deref()
+                && commands::is_recording(&log)
+            {
+                commands::diagnose_recordings(&log, array_path, &held_out, json.as_deref(), report.as_deref(), alpha)
+            } else if !held_out.is_empty() {
+                Err(InputError::Other(format!(
+                    "{}: --held-out takes real recordings (tables without the log's `up_x` column) with --array",
+                    log.display()
+                ))
+                .into())
+            } else {
+                commands::diagnose(&log, array.as_deref(), json.as_deref(), report.as_deref(), alpha, reference_temp_c)
+            }
         }
         Command::Design { config } => commands::design(&config),
         Command::Calibrate {

@@ -11,4 +11,5 @@
 pub mod diagnose;
 pub mod effect;
 pub mod log;
+pub mod recorded;
 pub mod simulate;

@@ -28,9 +28,32 @@ pub struct HeldOut {
     /// RMS of the dynamic residuals, m/s^2, against the per-sample static noise RMS.
     pub dynamic_residual_rms_m_s2: f64,
     pub dynamic_noise_rms_m_s2: f64,
+    /// With [`Refit::PoseAndBias`]: the recording's own input-referred bias of every
+    /// accelerometer (m/s^2) and its sigma (from the static samples' noise; the coupling with the
+    /// pose directions is left out, which the 20 poses of a real protocol make small).
+    pub refit_bias_m_s2: Option<Vec<f64>>,
+    pub refit_bias_sigma_m_s2: Option<Vec<f64>>,
 }
 
-/// Predicts `rec` with `params` (see the module docs).
+impl HeldOut {
+    /// The dynamic misfit against the static noise: `(residual RMS / noise RMS)^2` (NaN without
+    /// a dynamic phase).
+    pub fn dynamic_chi2_dof(&self) -> f64 {
+        (self.dynamic_residual_rms_m_s2 / self.dynamic_noise_rms_m_s2).powi(2)
+    }
+}
+
+/// What a held-out recording refits besides the motion.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refit {
+    /// The pose directions only (the calibration carries over whole).
+    Pose,
+    /// The pose directions and every accelerometer's bias (a turn-on bias: the bias differs
+    /// between recordings).
+    PoseAndBias,
+}
+
+/// Predicts `rec` with `params` (see the module docs), refitting the pose directions.
 pub fn predict(
     array: &Array,
     params: &SensorSet,
@@ -38,37 +61,54 @@ pub fn predict(
     detector: &DetectorSettings,
     gravity_m_s2: f64,
 ) -> Result<HeldOut, super::recording::RecordingError> {
+    predict_refitting(array, params, rec, detector, gravity_m_s2, Refit::Pose)
+}
+
+/// Predicts `rec` with `params`, refitting what `refit` says.
+pub fn predict_refitting(
+    array: &Array,
+    params: &SensorSet,
+    rec: &Recording,
+    detector: &DetectorSettings,
+    gravity_m_s2: f64,
+    refit: Refit,
+) -> Result<HeldOut, super::recording::RecordingError> {
     let seg = segment(rec, detector)?;
     let stat = static_data(rec, &seg.static_intervals);
-    let sens = sensors(array, params);
     let n = array.len();
-    let mut ss = 0.0;
-    let mut noise = 0.0;
-    let mut chi2 = 0.0;
-    for p in 0..stat.means.nrows() {
-        // Pose direction only: Gauss-Newton on two tangent angles.
-        let normal: nalgebra::Matrix3<f64> = sens.iter().map(|s| s.axis * s.axis.transpose()).sum();
-        let b: Vector3<f64> =
-            sens.iter().enumerate().map(|(j, s)| s.axis * (stat.means[(p, j)] / s.k - s.b_m_s2)).sum();
-        let mut u = normal.try_inverse().map(|m| m * b).unwrap_or_else(Vector3::z).normalize();
-        for _ in 0..20 {
-            let (e1, e2) = tilt_basis(&u);
-            let mut h = nalgebra::Matrix2::zeros();
-            let mut g = nalgebra::Vector2::zeros();
+    let mut params = params.clone();
+    let poses = stat.means.nrows();
+    let total: f64 = stat.counts.iter().map(|&c| c as f64).sum();
+    let (mut refit_bias_m_s2, mut refit_bias_sigma_m_s2) = (None, None);
+    if refit == Refit::PoseAndBias && poses > 0 {
+        // Alternately the poses given the biases and the biases given the poses (each
+        // accelerometer's bias is the count-weighted mean of its static residuals).
+        for _ in 0..200 {
+            let sens = sensors(array, &params);
+            let ups: Vec<Vector3<f64>> = (0..poses).map(|p| solve_pose(&sens, &stat, p, gravity_m_s2)).collect();
+            let mut largest = 0.0f64;
             for (j, s) in sens.iter().enumerate() {
-                let w = stat.counts[p] as f64 / stat.sigma[j].powi(2);
-                let r = stat.means[(p, j)] - s.output(&(u * gravity_m_s2));
-                let d =
-                    nalgebra::Vector2::new(s.k * gravity_m_s2 * s.axis.dot(&e1), s.k * gravity_m_s2 * s.axis.dot(&e2));
-                h += d * d.transpose() * w;
-                g += d * (w * r);
+                let shift: f64 = (0..poses)
+                    .map(|p| stat.counts[p] as f64 * (stat.means[(p, j)] - s.output(&(ups[p] * gravity_m_s2))))
+                    .sum::<f64>()
+                    / (total * s.k);
+                params.bias_m_s2[j] += shift;
+                largest = largest.max(shift.abs());
             }
-            let Some(step) = h.try_inverse().map(|hi| hi * g) else { break };
-            u = (u + e1 * step[0] + e2 * step[1]).normalize();
-            if step.norm() < 1e-12 {
+            if largest < 1e-12 {
                 break;
             }
         }
+        refit_bias_sigma_m_s2 =
+            Some((0..n).map(|j| stat.sigma[j] / (params.scale_factor[j].abs() * total.sqrt())).collect());
+        refit_bias_m_s2 = Some(params.bias_m_s2.clone());
+    }
+    let sens = sensors(array, &params);
+    let mut ss = 0.0;
+    let mut noise = 0.0;
+    let mut chi2 = 0.0;
+    for p in 0..poses {
+        let u = solve_pose(&sens, &stat, p, gravity_m_s2);
         for (j, s) in sens.iter().enumerate() {
             let r = stat.means[(p, j)] - s.output(&(u * gravity_m_s2));
             let sd = stat.sigma[j] / (stat.counts[p] as f64).sqrt();
@@ -77,21 +117,54 @@ pub fn predict(
             chi2 += (r / sd).powi(2);
         }
     }
-    let count = (stat.means.nrows() * n) as f64;
+    let count = (poses * n) as f64;
+    let fitted = 2.0 * poses as f64 + if refit_bias_m_s2.is_some() { n as f64 } else { 0.0 };
     let prepared = prepare_dynamic(rec, &seg, false, None);
     let (dyn_rms, dyn_noise, dyn_samples) = match prepared.data.as_ref() {
-        Some(d) => dynamic_residual(array, params, d, &stat.sigma),
+        Some(d) => dynamic_residual(array, &params, d, &stat.sigma),
         None => (f64::NAN, f64::NAN, 0),
     };
     Ok(HeldOut {
-        static_intervals: stat.means.nrows(),
+        static_intervals: poses,
         static_residual_rms_m_s2: (ss / count).sqrt(),
         static_noise_rms_m_s2: (noise / count).sqrt(),
-        static_chi2_dof: chi2 / (count - 2.0 * stat.means.nrows() as f64).max(1.0),
+        static_chi2_dof: chi2 / (count - fitted).max(1.0),
         dynamic_samples: dyn_samples,
         dynamic_residual_rms_m_s2: dyn_rms,
         dynamic_noise_rms_m_s2: dyn_noise,
+        refit_bias_m_s2,
+        refit_bias_sigma_m_s2,
     })
+}
+
+/// The up direction of static interval `p` given the sensors: Gauss-Newton on two tangent angles.
+fn solve_pose(
+    sens: &[super::model::Sensor],
+    stat: &super::fit::StaticData,
+    p: usize,
+    gravity_m_s2: f64,
+) -> Vector3<f64> {
+    let normal: nalgebra::Matrix3<f64> = sens.iter().map(|s| s.axis * s.axis.transpose()).sum();
+    let b: Vector3<f64> = sens.iter().enumerate().map(|(j, s)| s.axis * (stat.means[(p, j)] / s.k - s.b_m_s2)).sum();
+    let mut u = normal.try_inverse().map(|m| m * b).unwrap_or_else(Vector3::z).normalize();
+    for _ in 0..20 {
+        let (e1, e2) = tilt_basis(&u);
+        let mut h = nalgebra::Matrix2::zeros();
+        let mut g = nalgebra::Vector2::zeros();
+        for (j, s) in sens.iter().enumerate() {
+            let w = stat.counts[p] as f64 / stat.sigma[j].powi(2);
+            let r = stat.means[(p, j)] - s.output(&(u * gravity_m_s2));
+            let d = nalgebra::Vector2::new(s.k * gravity_m_s2 * s.axis.dot(&e1), s.k * gravity_m_s2 * s.axis.dot(&e2));
+            h += d * d.transpose() * w;
+            g += d * (w * r);
+        }
+        let Some(step) = h.try_inverse().map(|hi| hi * g) else { break };
+        u = (u + e1 * step[0] + e2 * step[1]).normalize();
+        if step.norm() < 1e-12 {
+            break;
+        }
+    }
+    u
 }
 
 fn dynamic_residual(array: &Array, params: &SensorSet, d: &DynamicData, sigma: &[f64]) -> (f64, f64, usize) {

@@ -12,6 +12,7 @@ mod navigation;
 mod noise;
 mod pose;
 mod protocol;
+mod recorded;
 mod reference;
 mod report;
 mod sample_rates;
