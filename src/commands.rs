@@ -578,11 +578,11 @@ pub fn diagnose_recordings(
     for f in &d.findings {
         let largest = f.value.iter().zip(&f.sigma).max_by(|a, b| a.0.abs().total_cmp(&b.0.abs()));
         println!(
-            "  {}: {} accelerometer(s); largest {}; p <= {:.1e} on every held-out recording",
+            "  {}: {} accelerometer(s); largest {}; p <= {} on every held-out recording",
             f.name,
             f.value.len(),
             largest.map(|(v, s)| format!("{v:.4e} +- {s:.1e} {}", f.unit)).unwrap_or_default(),
-            f.p_value_largest
+            if f.p_value_largest > 0.0 { format!("{:.1e}", f.p_value_largest) } else { "1e-300".into() }
         );
     }
     for (name, why) in &d.not_named {

@@ -128,11 +128,15 @@ pub fn diagnose_recordings(
     let calibration = calibrate(fitting, array, settings)?;
     let fit = &calibration.fit;
     let n = array.array.len();
+    let g = settings.fit.gravity_m_s2;
+    // The fitting recording's static gap is the fit's own (its degrees of freedom count every
+    // fitted parameter); its dynamic gap is measured as on a held-out recording (the motion
+    // tracked again with the fitted parameters), so that the two are the same quantity.
+    let own = predict_refitting(&array.array, &fit.params, fitting, &settings.detector, g, Refit::Pose)?;
     let fitting_gap = Gap {
         static_chi2_dof: fit.static_chi2_dof,
-        dynamic: (!fit.motion.is_empty() && fit.dynamic_chi2_dof.is_finite()).then_some(fit.dynamic_chi2_dof),
+        dynamic: (!fit.motion.is_empty()).then(|| own.dynamic_chi2_dof()).filter(|v| v.is_finite()),
     };
-    let g = settings.fit.gravity_m_s2;
     let mut scores = Vec::with_capacity(held_out.len());
     let mut p_values = Vec::with_capacity(held_out.len());
     for other in held_out {
