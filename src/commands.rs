@@ -639,3 +639,28 @@ pub fn diagnose_recordings(
     }
     Ok(())
 }
+
+/// `gfcal inject`: a known effect added to a real recording.
+pub fn inject(
+    path: &Path,
+    array_path: &Path,
+    effect: &str,
+    accelerometer: usize,
+    value: f64,
+    out: &Path,
+) -> anyhow::Result<()> {
+    let array = gfcal::config::array::load_recording_array(array_path).map_err(InputError::Config)?;
+    // The recording is checked as `calibrate` checks it (columns, values, time) before anything is added.
+    gfcal::selfcal::recording::Recording::read(path, &array).map_err(|e| InputError::Other(e.to_string()))?;
+    let mut table = gfcal::io::table::Table::read(path).map_err(|e| InputError::Other(e.to_string()))?;
+    gfcal::discrepancy::inject::inject(&mut table, &array, effect, accelerometer, value)
+        .map_err(|e| InputError::Other(e.to_string()))?;
+    table.write(out).map_err(|e| anyhow::anyhow!("{e}"))?;
+    eprintln!(
+        "wrote {}: {} with {effect} = {value} on accelerometer {accelerometer} (column {})",
+        out.display(),
+        path.display(),
+        array.accelerometer_columns[accelerometer - 1]
+    );
+    Ok(())
+}

@@ -111,6 +111,28 @@ enum Command {
         #[arg(long, default_value_t = 25.0)]
         reference_temp_c: f64,
     },
+    /// Add a known effect to a real recording (to check that a diagnosis finds it): the effect's
+    /// generator works on the recorded output column; values in output units (see README).
+    Inject {
+        /// The recording (.csv or .parquet), as for `gfcal calibrate`.
+        recording: PathBuf,
+        /// Its array file (columns and ranges).
+        #[arg(long)]
+        array: PathBuf,
+        /// bias_turn_on (m/s^2), bias_time_drift (m/s^2/s), scale_factor_quadratic (1/(m/s^2)),
+        /// scale_factor_cubic (1/(m/s^2)^2) or sampling_delay (s).
+        #[arg(long)]
+        effect: String,
+        /// The accelerometer (1-based, in the array file's order).
+        #[arg(long)]
+        accelerometer: usize,
+        /// The effect's size, in the unit above.
+        #[arg(long, allow_hyphen_values = true)]
+        value: f64,
+        /// The recording to write (.csv or .parquet).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Which error parameters drive each drift metric of a run: standardised rank regression
     /// coefficients (DIR/sensitivity.csv).
     Sensitivity {
@@ -269,6 +291,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
         }
         Command::Design { config } => commands::design(&config),
+        Command::Inject { recording, array, effect, accelerometer, value, out } => {
+            commands::inject(&recording, &array, &effect, accelerometer, value, &out)
+        }
         Command::Calibrate {
             recording,
             array,

@@ -10,6 +10,7 @@
 
 pub mod diagnose;
 pub mod effect;
+pub mod inject;
 pub mod log;
 pub mod recorded;
 pub mod simulate;

@@ -26,6 +26,8 @@ pub enum TableError {
     Format { path: PathBuf, problem: String },
     #[error("{}: data row {row}, column `{column}`: {problem}", path.display())]
     Value { path: PathBuf, row: usize, column: String, problem: String },
+    #[error("{}: cannot write: {problem}", path.display())]
+    Write { path: PathBuf, problem: String },
 }
 
 /// The OS message without the repeated "(os error N)" detail when the kind says the same.
@@ -82,6 +84,39 @@ impl Table {
     /// Index of the column called `name`.
     pub fn index(&self, name: &str) -> Option<usize> {
         self.names.iter().position(|n| n == name)
+    }
+
+    /// Writes the table (atomically) as Parquet for a `.parquet` name, CSV otherwise; every column
+    /// as 64-bit floats (shortest round-trip digits in CSV).
+    pub fn write(&self, path: &Path) -> Result<(), TableError> {
+        let fail = |problem: String| TableError::Write { path: path.to_path_buf(), problem };
+        let io = |source: std::io::Error| fail(io_message(&source));
+        let format = |problem: String| fail(problem);
+        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("parquet")) {
+            let fields: Vec<arrow_schema::Field> =
+                self.names.iter().map(|n| arrow_schema::Field::new(n, DataType::Float64, false)).collect();
+            let arrays: Vec<ArrayRef> = self
+                .data
+                .iter()
+                .map(|d| std::sync::Arc::new(arrow_array::Float64Array::from(d.clone())) as ArrayRef)
+                .collect();
+            let batch =
+                arrow_array::RecordBatch::try_new(std::sync::Arc::new(arrow_schema::Schema::new(fields)), arrays)
+                    .map_err(|e| format(e.to_string()))?;
+            crate::io::parquet::write_part(path, &batch, &[("gfcal:version".into(), env!("CARGO_PKG_VERSION").into())])
+                .map_err(|e| match e {
+                    crate::io::parquet::ParquetIoError::Io { source, .. } => io(source),
+                    crate::io::parquet::ParquetIoError::Format { message, .. } => format(message),
+                })
+        } else {
+            let mut w = csv::Writer::from_writer(Vec::new());
+            w.write_record(&self.names).map_err(|e| format(e.to_string()))?;
+            for i in 0..self.rows() {
+                w.write_record(self.data.iter().map(|c| format!("{}", c[i]))).map_err(|e| format(e.to_string()))?;
+            }
+            let bytes = w.into_inner().map_err(|e| format(e.to_string()))?;
+            crate::io::write_atomic(path, &bytes).map_err(io)
+        }
     }
 }
 

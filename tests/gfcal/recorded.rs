@@ -98,3 +98,133 @@ fn real_recordings_name_a_turn_on_bias_that_holds_up_on_every_held_out_recording
     assert!(d.fitting.dynamic.is_some_and(|g| g > 100.0), "{:?}", d.fitting);
     assert_eq!(d.explanation(), Explanation::Partial);
 }
+
+fn gfcal(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_gfcal"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("gfcal runs")
+}
+
+const ARRAY: &str = "configs/arrays/mimu4444_corners.toml";
+
+/// Item 5: a turn-on bias of 0.05 m/s^2 (a realistic size: the recordings' own changes are a median
+/// 0.01, at most 0.16) added by `gfcal inject` to accelerometer 5 of real recording 2 comes back on
+/// accelerometer 5, on top of what the clean recording shows, within its sigma; the others do not move.
+#[test]
+fn a_turn_on_bias_injected_into_a_real_recording_is_recovered_on_the_right_accelerometer() {
+    let dir = tempfile::tempdir().unwrap();
+    let injected = dir.path().join("recording_2_injected.parquet");
+    let o = gfcal(&[
+        "inject",
+        real(2).to_str().unwrap(),
+        "--array",
+        ARRAY,
+        "--effect",
+        "bias_turn_on",
+        "--accelerometer",
+        "5",
+        "--value",
+        "0.05",
+        "--out",
+        injected.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let array = mimu_array();
+    let fitting = Recording::read(&real(1), &array).unwrap();
+    let clean = Recording::read(&real(2), &array).unwrap();
+    let with = Recording::read(&injected, &array).unwrap();
+    let d = diagnose(&fitting, &array, &[clean, with]);
+    assert_eq!(d.findings.iter().map(|f| f.name.as_str()).collect::<Vec<_>>(), ["bias_turn_on"]);
+    let k5 = d.calibration.fit.params.scale_factor[4];
+    let (c, w) = (&d.held_out[0], &d.held_out[1]);
+    for j in 0..array.array.len() {
+        let extra = w.bias_change_m_s2[j] - c.bias_change_m_s2[j];
+        let sigma = w.bias_change_sigma_m_s2[j];
+        if j == 4 {
+            // Input-referred: the injected output offset over the scale factor.
+            assert!((extra - 0.05 / k5).abs() < sigma, "accelerometer 5: {extra} against {} +- {sigma}", 0.05 / k5);
+        } else {
+            assert!(extra.abs() < 0.1 * sigma, "accelerometer {}: moved by {extra} (sigma {sigma})", j + 1);
+        }
+    }
+}
+
+#[test]
+fn inject_refuses_unknown_effects_and_accelerometers() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.csv");
+    let run = |effect: &str, j: &str, v: &str| {
+        gfcal(&[
+            "inject",
+            real(1).to_str().unwrap(),
+            "--array",
+            ARRAY,
+            "--effect",
+            effect,
+            "--accelerometer",
+            j,
+            "--value",
+            v,
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    for (o, says) in [
+        (run("warp_drive", "1", "1"), "unknown effect `warp_drive` (known: bias_turn_on"),
+        (run("bias_turn_on", "25", "1"), "25 is not an accelerometer"),
+        (run("bias_turn_on", "0", "1"), "0 is not an accelerometer"),
+        (run("bias_turn_on", "1", "nan"), "--value: must be a finite number"),
+    ] {
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        assert!(err.contains(says), "{err}");
+        assert!(!out.exists(), "nothing written");
+    }
+}
+
+/// The generators against their definitions on a small table: each changes only its column, by
+/// the documented amount.
+#[test]
+fn each_injected_effect_changes_its_column_as_documented() {
+    use gfcal::discrepancy::inject::inject;
+    use gfcal::io::table::Table;
+    let array = mimu_array();
+    let n = array.array.len();
+    let rows = 50;
+    let t: Vec<f64> = (0..rows).map(|i| 10.0 + 0.016 * i as f64).collect();
+    let mut names = vec!["t_s".to_string()];
+    names.extend(array.accelerometer_columns.iter().cloned());
+    let mut data = vec![t.clone()];
+    data.extend((0..n).map(|j| t.iter().map(|ti| 3.0 * (ti * (j + 1) as f64).sin()).collect::<Vec<f64>>()));
+    let table = Table { path: "test.csv".into(), names, data, first_null_row: vec![None; n + 1] };
+    let col = 1 + 6; // accelerometer 7
+    for (effect, v) in [
+        ("bias_turn_on", 0.05),
+        ("bias_time_drift", 0.001),
+        ("scale_factor_quadratic", 1e-3),
+        ("scale_factor_cubic", 1e-4),
+        ("sampling_delay", 0.004),
+    ] {
+        let mut x = table.clone();
+        inject(&mut x, &array, effect, 7, v).unwrap();
+        for (c, (a, b)) in x.data.iter().zip(&table.data).enumerate() {
+            if c != col {
+                assert_eq!(a, b, "{effect}: column {c} changed");
+            }
+        }
+        for i in 1..rows {
+            let (s, y) = (table.data[col][i], x.data[col][i]);
+            let want = match effect {
+                "bias_turn_on" => s + v,
+                "bias_time_drift" => s + v * (t[i] - t[0]),
+                "scale_factor_quadratic" => s + v * s * s,
+                "scale_factor_cubic" => s + v * s * s * s,
+                // Between samples i-1 and i: 4 ms back of a 16 ms period is a quarter of the way.
+                _ => table.data[col][i] + 0.25 * (table.data[col][i - 1] - table.data[col][i]),
+            };
+            assert!((y - want).abs() < 1e-12, "{effect} at row {i}: {y} against {want}");
+        }
+    }
+}
