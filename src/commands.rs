@@ -569,7 +569,9 @@ pub fn diagnose_recordings(
     for h in &d.held_out {
         println!("  held out {}:", h.recording.display());
         println!("    baseline (poses and motion refitted): {}", show(&h.before));
-        println!("    with the named effects:               {}", show(&h.after));
+        for (name, g) in &h.after_each {
+            println!("    + {name:<35} {}", show(g));
+        }
     }
     println!("\neffects named (each lowers the gap on every held-out recording):");
     if d.findings.is_empty() {
@@ -619,6 +621,13 @@ pub fn diagnose_recordings(
                 "dynamic_gap_after": h.after.dynamic,
                 "bias_change_m_s2": h.bias_change_m_s2,
                 "bias_change_sigma_m_s2": h.bias_change_sigma_m_s2,
+                "scale_factor_change": h.scale_factor_change,
+                "scale_factor_change_sigma": h.scale_factor_change_sigma,
+                "after_each": h.after_each.iter().map(|(name, g)| serde_json::json!({
+                    "effect": name,
+                    "gap": g.static_chi2_dof,
+                    "dynamic_gap": g.dynamic,
+                })).collect::<Vec<_>>(),
             })).collect::<Vec<_>>(),
             "effects": d.findings.iter().map(|f| serde_json::json!({
                 "name": f.name,

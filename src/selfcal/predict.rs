@@ -33,6 +33,9 @@ pub struct HeldOut {
     /// pose directions is left out, which the 20 poses of a real protocol make small).
     pub refit_bias_m_s2: Option<Vec<f64>>,
     pub refit_bias_sigma_m_s2: Option<Vec<f64>>,
+    /// With [`Refit::PoseBiasAndScale`]: the recording's own scale factors and their sigmas.
+    pub refit_scale_factor: Option<Vec<f64>>,
+    pub refit_scale_factor_sigma: Option<Vec<f64>>,
 }
 
 impl HeldOut {
@@ -51,6 +54,8 @@ pub enum Refit {
     /// The pose directions and every accelerometer's bias (a turn-on bias: the bias differs
     /// between recordings).
     PoseAndBias,
+    /// The pose directions, and every accelerometer's bias and scale factor.
+    PoseBiasAndScale,
 }
 
 /// Predicts `rec` with `params` (see the module docs), refitting the pose directions.
@@ -80,28 +85,45 @@ pub fn predict_refitting(
     let poses = stat.means.nrows();
     let total: f64 = stat.counts.iter().map(|&c| c as f64).sum();
     let (mut refit_bias_m_s2, mut refit_bias_sigma_m_s2) = (None, None);
-    if refit == Refit::PoseAndBias && poses > 0 {
-        // Alternately the poses given the biases and the biases given the poses (each
-        // accelerometer's bias is the count-weighted mean of its static residuals).
-        for _ in 0..200 {
+    let (mut refit_scale_factor, mut refit_scale_factor_sigma) = (None, None);
+    if refit != Refit::Pose && poses > 0 {
+        // Alternately the poses given the sensors and the sensors given the poses: each
+        // accelerometer's bias (and with `PoseBiasAndScale` its scale factor) by count-weighted
+        // least squares of its interval means on its input `a . u g`.
+        let mut spread = vec![0.0; n];
+        for _ in 0..500 {
             let sens = sensors(array, &params);
             let ups: Vec<Vector3<f64>> = (0..poses).map(|p| solve_pose(&sens, &stat, p, gravity_m_s2)).collect();
             let mut largest = 0.0f64;
             for (j, s) in sens.iter().enumerate() {
-                let shift: f64 = (0..poses)
-                    .map(|p| stat.counts[p] as f64 * (stat.means[(p, j)] - s.output(&(ups[p] * gravity_m_s2))))
-                    .sum::<f64>()
-                    / (total * s.k);
-                params.bias_m_s2[j] += shift;
-                largest = largest.max(shift.abs());
+                let w = |p: usize| stat.counts[p] as f64;
+                let x = |p: usize| s.axis.dot(&(ups[p] * gravity_m_s2));
+                let y = |p: usize| stat.means[(p, j)];
+                let mx = (0..poses).map(|p| w(p) * x(p)).sum::<f64>() / total;
+                let my = (0..poses).map(|p| w(p) * y(p)).sum::<f64>() / total;
+                let sxx: f64 = (0..poses).map(|p| w(p) * (x(p) - mx).powi(2)).sum();
+                let k = if refit == Refit::PoseBiasAndScale && sxx > 0.0 {
+                    (0..poses).map(|p| w(p) * (x(p) - mx) * (y(p) - my)).sum::<f64>() / sxx
+                } else {
+                    s.k
+                };
+                let b = my / k - mx;
+                largest = largest.max((b - params.bias_m_s2[j]).abs()).max((k - params.scale_factor[j]).abs());
+                params.bias_m_s2[j] = b;
+                params.scale_factor[j] = k;
+                spread[j] = sxx;
             }
-            if largest < 1e-12 {
+            if largest < 1e-13 {
                 break;
             }
         }
         refit_bias_sigma_m_s2 =
             Some((0..n).map(|j| stat.sigma[j] / (params.scale_factor[j].abs() * total.sqrt())).collect());
         refit_bias_m_s2 = Some(params.bias_m_s2.clone());
+        if refit == Refit::PoseBiasAndScale {
+            refit_scale_factor_sigma = Some((0..n).map(|j| stat.sigma[j] / spread[j].sqrt()).collect());
+            refit_scale_factor = Some(params.scale_factor.clone());
+        }
     }
     let sens = sensors(array, &params);
     let mut ss = 0.0;
@@ -118,7 +140,9 @@ pub fn predict_refitting(
         }
     }
     let count = (poses * n) as f64;
-    let fitted = 2.0 * poses as f64 + if refit_bias_m_s2.is_some() { n as f64 } else { 0.0 };
+    let fitted = 2.0 * poses as f64
+        + if refit_bias_m_s2.is_some() { n as f64 } else { 0.0 }
+        + if refit_scale_factor.is_some() { n as f64 } else { 0.0 };
     let prepared = prepare_dynamic(rec, &seg, false, None);
     let (dyn_rms, dyn_noise, dyn_samples) = match prepared.data.as_ref() {
         Some(d) => dynamic_residual(array, &params, d, &stat.sigma),
@@ -134,6 +158,8 @@ pub fn predict_refitting(
         dynamic_noise_rms_m_s2: dyn_noise,
         refit_bias_m_s2,
         refit_bias_sigma_m_s2,
+        refit_scale_factor,
+        refit_scale_factor_sigma,
     })
 }
 

@@ -59,6 +59,37 @@ fn a_turn_on_bias_between_simulated_recordings_is_named_and_recovered_within_its
 }
 
 #[test]
+fn a_scale_factor_change_between_simulated_recordings_is_named_after_the_bias_and_recovered() {
+    let array = mimu_array();
+    let n = array.array.len();
+    let t = truth(&array);
+    let mut shifted = t.clone();
+    for j in 0..n {
+        shifted.bias_m_s2[j] += 0.03 * if j % 3 == 0 { 1.0 } else { -0.5 };
+        // 500-1,500 ppm (a temperature change of tens of degrees on a MEMS part).
+        shifted.scale_factor[j] *= 1.0 + 1e-3 * ((j as f64 * 0.61).sin());
+    }
+    let a = recording(&array, &t, 35);
+    let b = recording(&array, &shifted, 36);
+    let d = diagnose(&a, &array, std::slice::from_ref(&b));
+    let names: Vec<&str> = d.findings.iter().map(|f| f.name.as_str()).collect();
+    assert_eq!(names, ["bias_turn_on", "scale_factor_turn_on"], "{:?}", d.not_named);
+    let h = &d.held_out[0];
+    let z: Vec<f64> = (0..n)
+        .map(|j| {
+            (h.scale_factor_change[j] - (shifted.scale_factor[j] - t.scale_factor[j])) / h.scale_factor_change_sigma[j]
+        })
+        .collect();
+    assert!(z.iter().all(|v| v.abs() < 4.0), "{z:?}");
+    let rms = (z.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
+    assert!((0.6..1.6).contains(&rms), "RMS of the normalised errors {rms}: {z:?}");
+    // The gap after each addition: the bias alone leaves the scale-factor change, both leave noise.
+    assert_eq!(h.after_each.len(), 2);
+    assert!(h.after_each[0].1.static_chi2_dof > 2.0 && h.after_each[1].1.static_chi2_dof < 1.5, "{:?}", h.after_each);
+    assert_eq!(d.explanation(), Explanation::Complete);
+}
+
+#[test]
 fn recordings_with_the_same_biases_name_no_turn_on_bias() {
     let array = mimu_array();
     let t = truth(&array);

@@ -42,6 +42,22 @@ def main(folder):
         }
         row = [cells.get(f"recording_{k}", "(fitting)") for k in range(1, 7)]
         print(f"| {name(r['recording'])} | " + " | ".join(row) + " |")
+    print("\n## Effects tried on every split\n")
+    print("| fitted on | named | not named (why) |")
+    print("| --- | --- | --- |")
+    for r in runs:
+        named = ", ".join(e["name"] for e in r["effects"]) or "none"
+        why = "; ".join(f"{x['name']}: {x['why']}" for x in r["not_named"]) or "-"
+        print(f"| {name(r['recording'])} | {named} | {why} |")
+    ks, kz = [], []
+    for r in runs:
+        for h in r["held_out"]:
+            for c, s in zip(h["scale_factor_change"], h["scale_factor_change_sigma"]):
+                ks.append(abs(c))
+                kz.append(abs(c) / s)
+    print(f"\nScale-factor changes between recordings (refitted with the biases), over the 30 ordered pairs and 24")
+    print(f"accelerometers: median |change| {statistics.median(ks) * 1e6:.0f} ppm, largest {max(ks) * 1e6:.0f} ppm;")
+    print(f"median |change| / sigma {statistics.median(kz):.1f}, largest {max(kz):.1f}.")
     print("\n## bias_turn_on: the bias change between recordings\n")
     changes, zs = [], []
     for r in runs:
