@@ -28,7 +28,7 @@ use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use super::diagnose::Explanation;
 use crate::selfcal::calibrate::{CalibrateError, CalibrateSettings, Calibration, calibrate};
-use crate::selfcal::predict::{Refit, predict_refitting};
+use crate::selfcal::predict::{HeldOut, Refit, predict_refitting};
 use crate::selfcal::recording::{Recording, RecordingArray, RecordingError};
 
 /// The gap of one recording, static and dynamic phase.
@@ -153,31 +153,17 @@ pub fn diagnose_recordings(
         let after = predict_refitting(&array.array, &fit.params, other, &settings.detector, g, Refit::PoseAndBias)?;
         let scaled =
             predict_refitting(&array.array, &fit.params, other, &settings.detector, g, Refit::PoseBiasAndScale)?;
-        let k = scaled.refit_scale_factor.clone().unwrap_or_default();
-        let k_sigma = scaled.refit_scale_factor_sigma.clone().unwrap_or_default();
-        let k_change: Vec<f64> =
-            (0..n).map(|j| k.get(j).copied().unwrap_or(f64::NAN) - fit.params.scale_factor[j]).collect();
-        let k_change_sigma: Vec<f64> =
-            (0..n).map(|j| k_sigma.get(j).copied().unwrap_or(f64::NAN).hypot(fit.sigma(j, 0))).collect();
-        let k_wald: f64 = k_change.iter().zip(&k_change_sigma).map(|(c, s)| (c / s).powi(2)).sum();
-        let k_p = ChiSquared::new(n as f64).map(|d| d.sf(k_wald)).unwrap_or(f64::NAN);
-        scale_p_values.push(if k_p.is_finite() { k_p } else { 1.0 });
-        scaled_gaps.push(Gap { static_chi2_dof: scaled.static_chi2_dof, dynamic: finite(scaled.dynamic_chi2_dof()) });
-        let gap_before = Gap { static_chi2_dof: before.static_chi2_dof, dynamic: finite(before.dynamic_chi2_dof()) };
-        let gap_after = Gap { static_chi2_dof: after.static_chi2_dof, dynamic: finite(after.dynamic_chi2_dof()) };
-        let bias = after.refit_bias_m_s2.clone().unwrap_or_default();
-        let bias_sigma = after.refit_bias_sigma_m_s2.clone().unwrap_or_default();
-        let change: Vec<f64> =
-            (0..n).map(|j| bias.get(j).copied().unwrap_or(f64::NAN) - fit.params.bias_m_s2[j]).collect();
-        // The change's sigma: this recording's static noise and the fitting recording's sigma.
-        let change_sigma: Vec<f64> =
-            (0..n).map(|j| bias_sigma.get(j).copied().unwrap_or(f64::NAN).hypot(fit.sigma(j, 1))).collect();
-        // The test of "no change": sum of (change / sigma)^2 against chi-square with n dof (the
-        // fitting recording's bias error is in both the baseline's residuals and the refit, so a
-        // drop of the static chi-square alone would name a turn-on bias on identical recordings).
-        let wald: f64 = change.iter().zip(&change_sigma).map(|(c, s)| (c / s).powi(2)).sum();
-        let p_value = ChiSquared::new(n as f64).map(|d| d.sf(wald)).unwrap_or(f64::NAN);
-        p_values.push(if p_value.is_finite() { p_value } else { 1.0 });
+        let gap = |h: &HeldOut| Gap { static_chi2_dof: h.static_chi2_dof, dynamic: finite(h.dynamic_chi2_dof()) };
+        let (gap_before, gap_after) = (gap(&before), gap(&after));
+        scaled_gaps.push(gap(&scaled));
+        let fitted_bias = |j: usize| (fit.params.bias_m_s2[j], fit.sigma(j, 1));
+        let (change, change_sigma, p_value) =
+            change_test(after.refit_bias_m_s2.as_deref(), after.refit_bias_sigma_m_s2.as_deref(), fitted_bias, n);
+        p_values.push(p_value);
+        let fitted_k = |j: usize| (fit.params.scale_factor[j], fit.sigma(j, 0));
+        let (k_change, k_change_sigma, k_p) =
+            change_test(scaled.refit_scale_factor.as_deref(), scaled.refit_scale_factor_sigma.as_deref(), fitted_k, n);
+        scale_p_values.push(k_p);
         scores.push(HeldOutScore {
             recording: other.path.clone(),
             before: gap_before,
@@ -256,6 +242,26 @@ pub fn diagnose_recordings(
         }
     }
     Ok(RecordedDiagnosis { calibration, fitting: fitting_gap, held_out: scores, findings, not_named, alpha })
+}
+
+/// A per-recording parameter refitted on a held-out recording against the fitting recording's:
+/// the change of each accelerometer's parameter (`refit` minus the fitting value), its sigma
+/// (this recording's and the fitting recording's, combined), and the p-value of "no change":
+/// sum of (change / sigma)^2 against chi-square with `n` dof. (The fitting recording's error is
+/// in both the baseline's residuals and the refit, so a fall of the held-out chi-square alone
+/// would name the effect on identical recordings.) A missing refit gives NaN and p = 1.
+fn change_test(
+    refit: Option<&[f64]>,
+    refit_sigma: Option<&[f64]>,
+    fitted: impl Fn(usize) -> (f64, f64),
+    n: usize,
+) -> (Vec<f64>, Vec<f64>, f64) {
+    let at = |v: Option<&[f64]>, j: usize| v.and_then(|v| v.get(j)).copied().unwrap_or(f64::NAN);
+    let change: Vec<f64> = (0..n).map(|j| at(refit, j) - fitted(j).0).collect();
+    let sigma: Vec<f64> = (0..n).map(|j| at(refit_sigma, j).hypot(fitted(j).1)).collect();
+    let wald: f64 = change.iter().zip(&sigma).map(|(c, s)| (c / s).powi(2)).sum();
+    let p = ChiSquared::new(n as f64).map(|d| d.sf(wald)).unwrap_or(f64::NAN);
+    (change, sigma, if p.is_finite() { p } else { 1.0 })
 }
 
 fn finite(v: f64) -> Option<f64> {
