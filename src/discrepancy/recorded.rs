@@ -5,15 +5,19 @@
 //!
 //! **The gap.** Static phase: chi-square per degree of freedom of the interval means against the
 //! pooled within-interval noise, with the pose directions (and whatever a named per-recording
-//! effect says) refitted. Dynamic phase: `(residual RMS / static noise RMS)^2` of every unclipped
-//! output, with the motion of every sample refitted; about 1 for a model that explains the
-//! rotation phase as well as the noise.
+//! effect says) refitted; on the fitting recording, the fit's own chi-square per degree of freedom.
+//! Dynamic phase: `(residual RMS / static noise RMS)^2` of every unclipped output, with the motion
+//! of every sample tracked with the model's parameters, on the fitting and the held-out
+//! recordings alike; about 1 for a model that explains the rotation phase as well as the noise. A
+//! gap above [`GAP_ABOVE_NOISE`] is more than the noise.
 //!
 //! **Held-out scoring.** The calibration of the fitting recording is applied to each held-out
 //! recording with only what must differ between recordings refitted there: the pose directions,
 //! the motion, and the parameters of the per-recording effects under test. An effect is named
-//! only if it lowers the gap on *every* held-out recording, by more than a likelihood-ratio test
-//! at the familywise level `alpha` allows (Bonferroni over the held-out recordings).
+//! only if it lowers the static gap on *every* held-out recording and its refitted parameters
+//! differ from the fitting recording's on every one by a chi-square test at the familywise level
+//! `alpha` (Bonferroni over the held-out recordings; the sigmas carry the fitting recording's own
+//! uncertainty: see [`change_test`]).
 //!
 //! **Effects tried so far:** `bias_turn_on`, a bias that differs between recordings (each
 //! accelerometer's bias refitted on the held-out recording's static intervals), then, on top of
@@ -250,7 +254,7 @@ pub fn diagnose_recordings(
 /// sum of (change / sigma)^2 against chi-square with `n` dof. (The fitting recording's error is
 /// in both the baseline's residuals and the refit, so a fall of the held-out chi-square alone
 /// would name the effect on identical recordings.) A missing refit gives NaN and p = 1.
-fn change_test(
+pub fn change_test(
     refit: Option<&[f64]>,
     refit_sigma: Option<&[f64]>,
     fitted: impl Fn(usize) -> (f64, f64),
