@@ -505,15 +505,15 @@ pub fn diagnose(
     Ok(())
 }
 
-/// A real recording rather than a calibration log: a readable table without the log's commanded
-/// pose (`up_x`). An unreadable file is left to the log reader, which says why.
-pub fn is_recording(path: &Path) -> bool {
-    gfcal::io::table::Table::read(path).is_ok_and(|t| t.index("up_x").is_none())
+/// The table of a real recording rather than a calibration log: a readable table without the
+/// log's commanded pose (`up_x`). An unreadable file is left to the log reader, which says why.
+pub fn recording_table(path: &Path) -> Option<gfcal::io::table::Table> {
+    gfcal::io::table::Table::read(path).ok().filter(|t| t.index("up_x").is_none())
 }
 
 /// `gfcal diagnose RECORDING --array FILE [--held-out ...]`: the baseline's gap on real recordings.
 pub fn diagnose_recordings(
-    path: &Path,
+    table: &gfcal::io::table::Table,
     array_path: &Path,
     held_out: &[std::path::PathBuf],
     json: Option<&Path>,
@@ -534,8 +534,9 @@ pub fn diagnose_recordings(
         )
         .into());
     }
+    let path = table.path.as_path();
     let array = gfcal::config::array::load_recording_array(array_path).map_err(InputError::Config)?;
-    let rec = Recording::read(path, &array).map_err(|e| InputError::Other(e.to_string()))?;
+    let rec = Recording::from_table(table, &array).map_err(|e| InputError::Other(e.to_string()))?;
     let mut others = Vec::new();
     for other in held_out {
         let o = Recording::read(other, &array)
@@ -659,9 +660,9 @@ pub fn inject(
     out: &Path,
 ) -> anyhow::Result<()> {
     let array = gfcal::config::array::load_recording_array(array_path).map_err(InputError::Config)?;
-    // The recording is checked as `calibrate` checks it (columns, values, time) before anything is added.
-    gfcal::selfcal::recording::Recording::read(path, &array).map_err(|e| InputError::Other(e.to_string()))?;
     let mut table = gfcal::io::table::Table::read(path).map_err(|e| InputError::Other(e.to_string()))?;
+    // The recording is checked as `calibrate` checks it (columns, values, time) before anything is added.
+    gfcal::selfcal::recording::Recording::from_table(&table, &array).map_err(|e| InputError::Other(e.to_string()))?;
     gfcal::discrepancy::inject::inject(&mut table, &array, effect, accelerometer, value)
         .map_err(|e| InputError::Other(e.to_string()))?;
     table.write(out).map_err(|e| anyhow::anyhow!("{e}"))?;

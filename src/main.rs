@@ -277,9 +277,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::SimulateLog { config, out } => commands::simulate_log(&config, &out),
         Command::Diagnose { log, array, held_out, json, report, alpha, reference_temp_c } => {
             if let Some(array_path) = array.as_deref()
-                && commands::is_recording(&log)
+                && let Some(table) = commands::recording_table(&log)
             {
-                commands::diagnose_recordings(&log, array_path, &held_out, json.as_deref(), report.as_deref(), alpha)
+                commands::diagnose_recordings(&table, array_path, &held_out, json.as_deref(), report.as_deref(), alpha)
             } else if !held_out.is_empty() {
                 Err(InputError::Other(format!(
                     "{}: --held-out takes real recordings (tables without the log's `up_x` column) with --array",

@@ -160,33 +160,24 @@ fn a_held_out_recording_of_another_array_is_refused_naming_both_files() {
         .collect();
     write_csv(&other, &six);
     let json = dir.path().join("out.json");
-    let o = gfcal(&[
-        "calibrate",
-        main.to_str().unwrap(),
-        "--array",
-        ARRAY,
-        "--json",
-        json.to_str().unwrap(),
-        "--held-out",
-        other.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains(main.to_str().unwrap()) && err.contains(other.to_str().unwrap()), "names both: {err}");
-    // `gfcal diagnose` on recordings refuses it the same way (issue 11).
-    let o = gfcal(&[
-        "diagnose",
-        main.to_str().unwrap(),
-        "--array",
-        ARRAY,
-        "--json",
-        json.to_str().unwrap(),
-        "--held-out",
-        other.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains(main.to_str().unwrap()) && err.contains(other.to_str().unwrap()), "names both: {err}");
-    assert!(!json.exists(), "nothing written");
-    assert!(!json.exists(), "nothing written");
+    // `gfcal calibrate`, and `gfcal diagnose` on recordings (issue 11), refuse it the same way.
+    for command in ["calibrate", "diagnose"] {
+        let o = gfcal(&[
+            command,
+            main.to_str().unwrap(),
+            "--array",
+            ARRAY,
+            "--json",
+            json.to_str().unwrap(),
+            "--held-out",
+            other.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert_eq!(o.status.code(), Some(2), "{command}: {err}");
+        assert!(
+            err.contains(main.to_str().unwrap()) && err.contains(other.to_str().unwrap()),
+            "{command} names both: {err}"
+        );
+        assert!(!json.exists(), "{command}: nothing written");
+    }
 }

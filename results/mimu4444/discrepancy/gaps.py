@@ -12,6 +12,17 @@ def name(path):
     return Path(path).stem
 
 
+def held_out_table(runs, phase, cell):
+    """One row per fitting recording, one column per recording: the held-out gap before -> after."""
+    print(f"\n## Held-out recordings: {phase} gap before -> after\n")
+    print("| fitted on | " + " | ".join(f"recording_{k}" for k in range(1, 7)) + " |")
+    print("| --- " * 7 + "|")
+    for r in runs:
+        cells = {name(h["recording"]): cell(h) for h in r["held_out"]}
+        row = [cells.get(f"recording_{k}", "(fitting)") for k in range(1, 7)]
+        print(f"| {name(r['recording'])} | " + " | ".join(row) + " |")
+
+
 def main(folder):
     runs = [json.loads((Path(folder) / f"diagnose_{k}.json").read_text()) for k in range(1, 7)]
     print("# The baseline's gap on the six recordings, and after the named effects\n")
@@ -26,22 +37,8 @@ def main(folder):
         named = ", ".join(e["name"] for e in r["effects"]) or "none"
         dyn = f["dynamic_gap"]
         print(f"| {name(r['recording'])} | {f['static_chi2_dof']:.2f} | {dyn:.0f} | {named} | {r['explanation']} |")
-    print("\n## Held-out recordings: static gap before -> after\n")
-    print("| fitted on | " + " | ".join(f"recording_{k}" for k in range(1, 7)) + " |")
-    print("| --- " * 7 + "|")
-    for r in runs:
-        cells = {name(h["recording"]): f"{h['gap_before']:.0f} -> {h['gap_after']:.1f}" for h in r["held_out"]}
-        row = [cells.get(f"recording_{k}", "(fitting)") for k in range(1, 7)]
-        print(f"| {name(r['recording'])} | " + " | ".join(row) + " |")
-    print("\n## Held-out recordings: dynamic gap before -> after\n")
-    print("| fitted on | " + " | ".join(f"recording_{k}" for k in range(1, 7)) + " |")
-    print("| --- " * 7 + "|")
-    for r in runs:
-        cells = {
-            name(h["recording"]): f"{h['dynamic_gap_before']:.0f} -> {h['dynamic_gap_after']:.0f}" for h in r["held_out"]
-        }
-        row = [cells.get(f"recording_{k}", "(fitting)") for k in range(1, 7)]
-        print(f"| {name(r['recording'])} | " + " | ".join(row) + " |")
+    held_out_table(runs, "static", lambda h: f"{h['gap_before']:.0f} -> {h['gap_after']:.1f}")
+    held_out_table(runs, "dynamic", lambda h: f"{h['dynamic_gap_before']:.0f} -> {h['dynamic_gap_after']:.0f}")
     print("\n## Effects tried on every split\n")
     print("| fitted on | named | not named (why) |")
     print("| --- | --- | --- |")
