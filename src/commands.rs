@@ -512,14 +512,21 @@ pub fn recording_table(path: &Path) -> Option<gfcal::io::table::Table> {
 }
 
 /// `gfcal diagnose RECORDING --array FILE [--held-out ...]`: the baseline's gap on real recordings.
+/// Options of `gfcal diagnose` on recordings.
+pub struct RecordingOptions<'a> {
+    pub json: Option<&'a Path>,
+    pub report: Option<&'a Path>,
+    pub alpha: f64,
+    pub use_gyro: bool,
+}
+
 pub fn diagnose_recordings(
     table: &gfcal::io::table::Table,
     array_path: &Path,
     held_out: &[std::path::PathBuf],
-    json: Option<&Path>,
-    report: Option<&Path>,
-    alpha: f64,
+    options: RecordingOptions,
 ) -> anyhow::Result<()> {
+    let RecordingOptions { json, report, alpha, use_gyro } = options;
     use gfcal::discrepancy::diagnose::Explanation;
     use gfcal::discrepancy::recorded::{Gap, RecordedError, diagnose_recordings};
     use gfcal::selfcal::calibrate::{CalibrateError, CalibrateSettings};
@@ -544,7 +551,7 @@ pub fn diagnose_recordings(
         rec.same_array_as(&o).map_err(|e| InputError::Other(e.to_string()))?;
         others.push(o);
     }
-    let settings = CalibrateSettings::default();
+    let settings = CalibrateSettings { use_gyro, ..CalibrateSettings::default() };
     let d = diagnose_recordings(&rec, &array, &others, &settings, alpha).map_err(|e| -> anyhow::Error {
         match e {
             RecordedError::Calibrate(CalibrateError::Fit { source: FitError::Singular(_), .. }) => {
@@ -567,6 +574,9 @@ pub fn diagnose_recordings(
         d.calibration.dynamic_index.len()
     );
     println!("  fitting recording, baseline: {}", show(&d.fitting));
+    for (name, g) in &d.fitting_after_each {
+        println!("    + {name:<35} {}", show(g));
+    }
     for h in &d.held_out {
         println!("  held out {}:", h.recording.display());
         println!("    baseline (poses and motion refitted): {}", show(&h.before));
@@ -579,6 +589,17 @@ pub fn diagnose_recordings(
         println!("  none");
     }
     for f in &d.findings {
+        if f.accelerometer.is_some() || f.package.is_some() || f.value.len() == 9 {
+            let owner = match (f.accelerometer, f.package) {
+                (Some(j), _) => format!("accelerometer {}", j + 1),
+                (_, Some(m)) => format!("package {}", m + 1),
+                _ => "shared".into(),
+            };
+            let values: Vec<String> =
+                f.value.iter().zip(&f.sigma).map(|(v, s)| format!("{v:.3e} +- {s:.1e}")).collect();
+            println!("  {} on {owner}: {} {}", f.name, values.join(", "), f.unit);
+            continue;
+        }
         let largest = f.value.iter().zip(&f.sigma).max_by(|a, b| a.0.abs().total_cmp(&b.0.abs()));
         println!(
             "  {}: {} accelerometer(s); largest {}; p <= {} on every held-out recording",
@@ -590,6 +611,22 @@ pub fn diagnose_recordings(
     }
     for (name, why) in &d.not_named {
         println!("  not named: {name}: {why}");
+    }
+    println!("\nrank test on the fitting recording (directions of each effect the model absorbs):");
+    for r in &d.ranks {
+        println!("  {:<26} {:>3} parameter(s), {:>3} unseen", r.name, r.parameters, r.unseen);
+    }
+    println!("\nsensing points inside each package (location of each axis minus the first axis's, mm):");
+    for sp in &d.sensing_points {
+        let v: Vec<String> =
+            sp.difference_m.iter().zip(&sp.sigma_m).map(|(v, s)| format!("{:.2}+-{:.2}", v * 1e3, s * 1e3)).collect();
+        println!(
+            "  package {} (accelerometers {:?}): p = {:.1e}: {}",
+            sp.package + 1,
+            sp.accelerometers.iter().map(|j| j + 1).collect::<Vec<_>>(),
+            sp.p_value,
+            v.join(" ")
+        );
     }
     match d.explanation() {
         Explanation::Partial => println!(
@@ -606,14 +643,15 @@ pub fn diagnose_recordings(
                 "dynamic_gap": g.dynamic,
             })
         };
+        let fitting_after = d.fitting_after_each.last().map_or(d.fitting, |(_, g)| *g);
         let body = serde_json::json!({
             "recording": path.display().to_string(),
             "array": array_path.display().to_string(),
             "gap_before": d.fitting.static_chi2_dof,
-            "gap_after": d.fitting.static_chi2_dof,
+            "gap_after": fitting_after.static_chi2_dof,
             "dynamic_gap_before": d.fitting.dynamic,
-            "dynamic_gap_after": d.fitting.dynamic,
-            "fitting": {"before": gap(&d.fitting), "after": gap(&d.fitting)},
+            "dynamic_gap_after": fitting_after.dynamic,
+            "fitting": {"before": gap(&d.fitting), "after": gap(&fitting_after)},
             "held_out": d.held_out.iter().map(|h| serde_json::json!({
                 "recording": h.recording.display().to_string(),
                 "gap_before": h.before.static_chi2_dof,
@@ -630,9 +668,43 @@ pub fn diagnose_recordings(
                     "dynamic_gap": g.dynamic,
                 })).collect::<Vec<_>>(),
             })).collect::<Vec<_>>(),
+            "fitting_after_each": d.fitting_after_each.iter().map(|(name, g)| serde_json::json!({
+                "effect": name,
+                "gap": g.static_chi2_dof,
+                "dynamic_gap": g.dynamic,
+            })).collect::<Vec<_>>(),
+            "rank_tests": d.ranks.iter().map(|r| serde_json::json!({
+                "name": r.name, "parameters": r.parameters, "unseen": r.unseen,
+                "value": r.value, "sigma": r.sigma,
+            })).collect::<Vec<_>>(),
+            "sensing_points": d.sensing_points.iter().map(|sp| serde_json::json!({
+                "package": sp.package + 1,
+                "accelerometers": sp.accelerometers.iter().map(|j| j + 1).collect::<Vec<_>>(),
+                "difference_m": sp.difference_m,
+                "sigma_m": sp.sigma_m,
+                "p_value": sp.p_value,
+            })).collect::<Vec<_>>(),
+            "fitting_after_each": d.fitting_after_each.iter().map(|(name, g)| serde_json::json!({
+                "effect": name,
+                "gap": g.static_chi2_dof,
+                "dynamic_gap": g.dynamic,
+            })).collect::<Vec<_>>(),
+            "rank_tests": d.ranks.iter().map(|r| serde_json::json!({
+                "name": r.name, "parameters": r.parameters, "unseen": r.unseen,
+                "value": r.value, "sigma": r.sigma,
+            })).collect::<Vec<_>>(),
+            "sensing_points": d.sensing_points.iter().map(|sp| serde_json::json!({
+                "package": sp.package + 1,
+                "accelerometers": sp.accelerometers.iter().map(|j| j + 1).collect::<Vec<_>>(),
+                "difference_m": sp.difference_m,
+                "sigma_m": sp.sigma_m,
+                "p_value": sp.p_value,
+            })).collect::<Vec<_>>(),
             "effects": d.findings.iter().map(|f| serde_json::json!({
                 "name": f.name,
                 "accelerometer": f.accelerometer.map(|j| j + 1),
+                "package": f.package.map(|m| m + 1),
+                "package": f.package.map(|m| m + 1),
                 "value": f.value,
                 "sigma": f.sigma,
                 "unit": f.unit,

@@ -110,6 +110,10 @@ enum Command {
         /// Reference temperature of the temperature effects, deg C.
         #[arg(long, default_value_t = 25.0)]
         reference_temp_c: f64,
+        /// Recordings only: take the angular rate from the reference gyroscopes (as
+        /// `calibrate --use-gyro`), and try the gyroscopes' own scale factor and misalignment.
+        #[arg(long)]
+        use_gyro: bool,
     },
     /// Add a known effect to a real recording (to check that a diagnosis finds it): the effect's
     /// generator works on the recorded output column; values in output units (see README).
@@ -275,11 +279,22 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Report { dir } => runs::report(&dir),
         Command::Sensitivity { dir, max_trials } => runs::sensitivity(&dir, max_trials),
         Command::SimulateLog { config, out } => commands::simulate_log(&config, &out),
-        Command::Diagnose { log, array, held_out, json, report, alpha, reference_temp_c } => {
+        Command::Diagnose { log, array, held_out, json, report, alpha, reference_temp_c, use_gyro } => {
             if let Some(array_path) = array.as_deref()
                 && let Some(table) = commands::recording_table(&log)
             {
-                commands::diagnose_recordings(&table, array_path, &held_out, json.as_deref(), report.as_deref(), alpha)
+                commands::diagnose_recordings(
+                    &table,
+                    array_path,
+                    &held_out,
+                    commands::RecordingOptions { json: json.as_deref(), report: report.as_deref(), alpha, use_gyro },
+                )
+            } else if use_gyro {
+                Err(InputError::Other(format!(
+                    "{}: --use-gyro takes real recordings (tables without the log's `up_x` column) with --array",
+                    log.display()
+                ))
+                .into())
             } else if !held_out.is_empty() {
                 Err(InputError::Other(format!(
                     "{}: --held-out takes real recordings (tables without the log's `up_x` column) with --array",

@@ -31,8 +31,12 @@ use std::path::PathBuf;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use super::diagnose::Explanation;
-use crate::selfcal::calibrate::{CalibrateError, CalibrateSettings, Calibration, calibrate};
-use crate::selfcal::predict::{HeldOut, Refit, predict_refitting};
+use super::recorded_blocks::{Nuisance, RecordingState, accumulate_recording};
+use super::recorded_effect::{Layout, RecordedEffect};
+use super::recorded_sensing::{SensingPoint, sensing_points};
+use super::recorded_trial::{HeldOutNormal, RankTest, try_effects};
+use crate::selfcal::calibrate::{CalibrateError, CalibrateSettings, Calibration, calibrate, prepare_dynamic};
+use crate::selfcal::predict::{HeldOut, Refit, predict_refitting, predict_with_state};
 use crate::selfcal::recording::{Recording, RecordingArray, RecordingError};
 
 /// The gap of one recording, static and dynamic phase.
@@ -69,8 +73,11 @@ pub struct RecordedFinding {
     /// What the values are (for a per-recording effect: the RMS over the held-out recordings of
     /// the change from the fitting recording).
     pub what: String,
-    /// `None`: every accelerometer (the values are per accelerometer).
+    /// `None`: every accelerometer (the values are per accelerometer), or a package's or a shared
+    /// effect.
     pub accelerometer: Option<usize>,
+    /// The package (IMU, 0-based) of a per-package effect.
+    pub package: Option<usize>,
     pub value: Vec<f64>,
     pub sigma: Vec<f64>,
     pub unit: String,
@@ -91,8 +98,14 @@ pub struct RecordedDiagnosis {
     pub fitting: Gap,
     pub held_out: Vec<HeldOutScore>,
     pub findings: Vec<RecordedFinding>,
+    /// The fitting recording's gap after each named effect of the library (linearised).
+    pub fitting_after_each: Vec<(String, Gap)>,
     /// Effects tried and not named, with why.
     pub not_named: Vec<(String, String)>,
+    /// The rank test of every effect of the library tried.
+    pub ranks: Vec<RankTest>,
+    /// The sensing points of the axes of each package.
+    pub sensing_points: Vec<SensingPoint>,
     pub alpha: f64,
 }
 
@@ -105,7 +118,8 @@ impl RecordedDiagnosis {
         // right model, so a chi-square test at the noise alone would always reject it.) Fixed before
         // any recording was diagnosed.
         let above = |g: &Gap| g.static_chi2_dof > GAP_ABOVE_NOISE || g.dynamic.is_some_and(|d| d > GAP_ABOVE_NOISE);
-        let remains = above(&self.fitting) || self.held_out.iter().any(|h| above(&h.after));
+        let fitting = self.fitting_after_each.last().map_or(self.fitting, |(_, g)| *g);
+        let remains = above(&fitting) || self.held_out.iter().any(|h| above(&h.after));
         match (self.findings.is_empty(), remains) {
             (true, false) => Explanation::NothingToExplain,
             (true, true) => Explanation::Unexplained,
@@ -195,6 +209,7 @@ pub fn diagnose_recordings(
             name: "bias_turn_on".into(),
             what: "RMS over the held-out recordings of the bias change from the fitting recording".into(),
             accelerometer: None,
+            package: None,
             value: (0..n).map(|j| rms(&|s: &HeldOutScore| s.bias_change_m_s2[j])).collect(),
             sigma: (0..n).map(|j| rms(&|s: &HeldOutScore| s.bias_change_sigma_m_s2[j])).collect(),
             unit: "m/s^2".into(),
@@ -223,6 +238,7 @@ pub fn diagnose_recordings(
                 name: "scale_factor_turn_on".into(),
                 what: "RMS over the held-out recordings of the scale-factor change from the fitting recording".into(),
                 accelerometer: None,
+                package: None,
                 value: (0..n).map(|j| rms(&scores, &|s: &HeldOutScore| s.scale_factor_change[j])).collect(),
                 sigma: (0..n).map(|j| rms(&scores, &|s: &HeldOutScore| s.scale_factor_change_sigma[j])).collect(),
                 unit: "1".into(),
@@ -245,7 +261,91 @@ pub fn diagnose_recordings(
             s.after = s.before;
         }
     }
-    Ok(RecordedDiagnosis { calibration, fitting: fitting_gap, held_out: scores, findings, not_named, alpha })
+    // Then the library, on top of the turn-on effects named.
+    let named = |name: &str| findings.iter().any(|f| f.name == name);
+    let (refit, nuisance_b) = if named("scale_factor_turn_on") {
+        (Refit::PoseBiasAndScale, Nuisance::BiasAndScale)
+    } else if named("bias_turn_on") {
+        (Refit::PoseAndBias, Nuisance::Bias)
+    } else {
+        (Refit::Pose, Nuisance::Nothing)
+    };
+    let effects: Vec<RecordedEffect> =
+        RecordedEffect::ALL.into_iter().filter(|e| settings.use_gyro || !e.needs_reference_rate()).collect();
+    let layout = Layout::new(&array.array);
+    let dynamic_w: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    let prepared = prepare_dynamic(fitting, &calibration.segmentation, settings.use_gyro, calibration.gyro_bias_rad_s);
+    let static_t_s: Vec<f64> =
+        calibration.segmentation.static_intervals.iter().map(|iv| fitting.t_s[(iv.start + iv.end) / 2]).collect();
+    let state_a = RecordingState {
+        array: &array.array,
+        params: &fit.params,
+        stat: &calibration.static_data,
+        static_t_s: &static_t_s,
+        up: &fit.up,
+        static_variance_factor: fit.static_variance_factor,
+        dynamic: prepared.data.as_ref(),
+        motion: &fit.motion,
+        dynamic_w: &dynamic_w,
+        gravity_m_s2: g,
+        t_mid_s: middle(&fitting.t_s),
+    };
+    let normal_a = accumulate_recording(&state_a, Nuisance::Baseline, &effects);
+    let sensing = sensing_points(&normal_a.total(), &layout, &fit.params);
+    let mut held = Vec::with_capacity(held_out.len());
+    for (other, score) in held_out.iter().zip(&scores) {
+        let (_, st) = predict_with_state(
+            &array.array,
+            &fit.params,
+            other,
+            &settings.detector,
+            g,
+            refit,
+            Some(&dynamic_w),
+            settings.use_gyro,
+        )?;
+        let state = RecordingState {
+            array: &array.array,
+            params: &st.params,
+            stat: &st.stat,
+            static_t_s: &st.static_t_s,
+            up: &st.up,
+            static_variance_factor: 1.0,
+            dynamic: st.dynamic.as_ref(),
+            motion: &st.motion,
+            dynamic_w: &dynamic_w,
+            gravity_m_s2: g,
+            t_mid_s: st.t_mid_s,
+        };
+        held.push(HeldOutNormal { normal: accumulate_recording(&state, nuisance_b, &effects), gap: score.after });
+    }
+    let trial = try_effects(&normal_a, fitting_gap, &held, &effects, &layout, alpha);
+    for (s, each) in scores.iter_mut().zip(trial.held_out_after_each) {
+        if let Some((_, g)) = each.last() {
+            s.after = *g;
+        }
+        s.after_each.extend(each);
+    }
+    findings.extend(trial.findings);
+    not_named.extend(trial.not_named);
+    Ok(RecordedDiagnosis {
+        calibration,
+        fitting: fitting_gap,
+        held_out: scores,
+        findings,
+        fitting_after_each: trial.fitting_after_each,
+        not_named,
+        ranks: trial.ranks,
+        sensing_points: sensing,
+        alpha,
+    })
+}
+
+fn middle(t_s: &[f64]) -> f64 {
+    match (t_s.first(), t_s.last()) {
+        (Some(a), Some(b)) => 0.5 * (a + b),
+        _ => 0.0,
+    }
 }
 
 /// A per-recording parameter refitted on a held-out recording against the fitting recording's:

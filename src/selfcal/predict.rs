@@ -6,8 +6,8 @@
 use nalgebra::Vector3;
 
 use super::calibrate::{prepare_dynamic, static_data};
-use super::fit::DynamicData;
-use super::model::{SensorSet, sensors};
+use super::fit::{DynamicData, StaticData};
+use super::model::{SampleMotion, SensorSet, sensors};
 use super::recording::Recording;
 use super::segment::{DetectorSettings, segment};
 use super::track;
@@ -78,6 +78,40 @@ pub fn predict_refitting(
     gravity_m_s2: f64,
     refit: Refit,
 ) -> Result<HeldOut, super::recording::RecordingError> {
+    predict_with_state(array, params, rec, detector, gravity_m_s2, refit, None, false).map(|(h, _)| h)
+}
+
+/// The state of a held-out recording at the carried-over (and refitted) parameters: what a
+/// linearised test of further effects needs.
+#[derive(Debug, Clone)]
+pub struct HeldOutState {
+    /// The carried-over parameters with the refitted ones replaced.
+    pub params: SensorSet,
+    pub stat: StaticData,
+    /// Middle time of each static interval, s.
+    pub static_t_s: Vec<f64>,
+    pub up: Vec<Vector3<f64>>,
+    pub dynamic: Option<DynamicData>,
+    pub motion: Vec<SampleMotion>,
+    /// The recording's middle time, s.
+    pub t_mid_s: f64,
+}
+
+/// As [`predict_refitting`], and the state. The dynamic motion is tracked with the weights
+/// `dynamic_w` (per accelerometer) when given, else with the static noise's; with `use_gyro`, the
+/// rate is the reference gyroscopes' (bias from the static intervals) and a sample where one clips
+/// is left out, as in `calibrate --use-gyro`.
+#[allow(clippy::too_many_arguments)]
+pub fn predict_with_state(
+    array: &Array,
+    params: &SensorSet,
+    rec: &Recording,
+    detector: &DetectorSettings,
+    gravity_m_s2: f64,
+    refit: Refit,
+    dynamic_w: Option<&[f64]>,
+    use_gyro: bool,
+) -> Result<(HeldOut, HeldOutState), super::recording::RecordingError> {
     let seg = segment(rec, detector)?;
     let stat = static_data(rec, &seg.static_intervals);
     let n = array.len();
@@ -129,8 +163,8 @@ pub fn predict_refitting(
     let mut ss = 0.0;
     let mut noise = 0.0;
     let mut chi2 = 0.0;
-    for p in 0..poses {
-        let u = solve_pose(&sens, &stat, p, gravity_m_s2);
+    let up: Vec<Vector3<f64>> = (0..poses).map(|p| solve_pose(&sens, &stat, p, gravity_m_s2)).collect();
+    for (p, &u) in up.iter().enumerate() {
         for (j, s) in sens.iter().enumerate() {
             let r = stat.means[(p, j)] - s.output(&(u * gravity_m_s2));
             let sd = stat.sigma[j] / (stat.counts[p] as f64).sqrt();
@@ -143,12 +177,27 @@ pub fn predict_refitting(
     let fitted = 2.0 * poses as f64
         + if refit_bias_m_s2.is_some() { n as f64 } else { 0.0 }
         + if refit_scale_factor.is_some() { n as f64 } else { 0.0 };
-    let prepared = prepare_dynamic(rec, &seg, false, None);
+    let prepared = if use_gyro {
+        prepare_dynamic(rec, &seg, true, super::calibrate::gyro_bias(rec, &seg))
+    } else {
+        prepare_dynamic(rec, &seg, false, None)
+    };
+    let static_w: Vec<f64> = stat.sigma.iter().map(|s| 1.0 / (s * s)).collect();
+    let weights = dynamic_w.unwrap_or(&static_w);
+    let motion = match prepared.data.as_ref() {
+        Some(d) => track::from_scratch(array, d, weights, &params),
+        None => Vec::new(),
+    };
     let (dyn_rms, dyn_noise, dyn_samples) = match prepared.data.as_ref() {
-        Some(d) => dynamic_residual(array, &params, d, &stat.sigma),
+        Some(d) => dynamic_residual(array, &params, d, &motion, &stat.sigma),
         None => (f64::NAN, f64::NAN, 0),
     };
-    Ok(HeldOut {
+    let static_t_s = seg.static_intervals.iter().map(|iv| rec.t_s[(iv.start + iv.end) / 2]).collect();
+    let t_mid_s = match (rec.t_s.first(), rec.t_s.last()) {
+        (Some(a), Some(b)) => 0.5 * (a + b),
+        _ => 0.0,
+    };
+    let held = HeldOut {
         static_intervals: poses,
         static_residual_rms_m_s2: (ss / count).sqrt(),
         static_noise_rms_m_s2: (noise / count).sqrt(),
@@ -160,11 +209,13 @@ pub fn predict_refitting(
         refit_bias_sigma_m_s2,
         refit_scale_factor,
         refit_scale_factor_sigma,
-    })
+    };
+    let state = HeldOutState { params, stat, static_t_s, up, dynamic: prepared.data, motion, t_mid_s };
+    Ok((held, state))
 }
 
 /// The up direction of static interval `p` given the sensors: Gauss-Newton on two tangent angles.
-fn solve_pose(
+pub fn solve_pose(
     sens: &[super::model::Sensor],
     stat: &super::fit::StaticData,
     p: usize,
@@ -193,9 +244,13 @@ fn solve_pose(
     u
 }
 
-fn dynamic_residual(array: &Array, params: &SensorSet, d: &DynamicData, sigma: &[f64]) -> (f64, f64, usize) {
-    let weights: Vec<f64> = sigma.iter().map(|s| 1.0 / (s * s)).collect();
-    let motion = track::from_scratch(array, d, &weights, params);
+fn dynamic_residual(
+    array: &Array,
+    params: &SensorSet,
+    d: &DynamicData,
+    motion: &[SampleMotion],
+    sigma: &[f64],
+) -> (f64, f64, usize) {
     let sens = sensors(array, params);
     let n = array.len();
     let mut ss = 0.0;

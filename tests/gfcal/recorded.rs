@@ -113,7 +113,11 @@ fn real_recordings_name_a_turn_on_bias_that_holds_up_on_every_held_out_recording
     let held: Vec<Recording> = (2..=6).map(|k| Recording::read(&real(k), &array).expect("recording")).collect();
     let d = diagnose(&fitting, &array, &held);
     let names: Vec<&str> = d.findings.iter().map(|f| f.name.as_str()).collect();
-    assert_eq!(names, ["bias_turn_on"]);
+    assert_eq!(names[0], "bias_turn_on");
+    // The library (EXPECTATIONS.md, its section written before the six were run): a warm-up drift, refitted
+    // per recording, on some accelerometers, and nothing else.
+    assert!(names[1..].iter().all(|n| *n == "bias_time_drift") && names.len() > 1, "{names:?}");
+    assert!(d.findings.iter().filter(|f| f.name == "bias_time_drift").all(|f| f.value[0] < 0.0), "{:?}", d.findings);
     for h in &d.held_out {
         // It holds up on recordings it was not fitted to: the held-out static gap falls a lot.
         assert!(
@@ -258,4 +262,100 @@ fn each_injected_effect_changes_its_column_as_documented() {
             assert!((y - want).abs() < 1e-12, "{effect} at row {i}: {y} against {want}");
         }
     }
+}
+
+/// The rank test and the parameters of one effect of the library, as fitted on the fitting recording.
+fn tried<'a>(d: &'a RecordedDiagnosis, name: &str) -> &'a gfcal::discrepancy::recorded_trial::RankTest {
+    d.ranks.iter().find(|r| r.name == name).unwrap_or_else(|| panic!("{name} not tried: {:?}", d.ranks))
+}
+
+fn named_on(d: &RecordedDiagnosis, name: &str) -> Vec<usize> {
+    d.findings.iter().filter(|f| f.name == name).filter_map(|f| f.accelerometer).collect()
+}
+
+fn inject_into(from: &std::path::Path, to: &std::path::Path, effect: &str, accelerometer: &str, value: &str) {
+    let o = gfcal(&[
+        "inject",
+        from.to_str().unwrap(),
+        "--array",
+        ARRAY,
+        "--effect",
+        effect,
+        "--accelerometer",
+        accelerometer,
+        "--value",
+        value,
+        "--out",
+        to.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// Items 3 and 5 on the real board: an input-dependent scale factor (1.5e-4 /(m/s^2) on accelerometer 5,
+/// 2.4% of the reading at the rail, about 6 robust sigmas) and a bias drift (1e-4 m/s^2/s on accelerometer
+/// 11, 0.06 m/s^2 over a recording) added by `gfcal inject` to real recordings 2 and 3 (a property of the
+/// hardware is in every recording) come back named on their accelerometers, each recovered on top of what the
+/// clean pair shows within its sigma. The rank tests are exact: a linear cross-axis sensitivity is a tilt, a
+/// delay common to every package is a rigid motion at another time.
+#[test]
+fn effects_injected_into_real_recordings_are_named_on_their_accelerometer_and_recovered() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut injected = Vec::new();
+    for k in [2, 3] {
+        let mid = dir.path().join(format!("r{k}_q.parquet"));
+        let out = dir.path().join(format!("r{k}_qd.parquet"));
+        inject_into(&real(k), &mid, "scale_factor_quadratic", "5", "1.5e-4");
+        inject_into(&mid, &out, "bias_time_drift", "11", "1e-4");
+        injected.push(out);
+    }
+    let array = mimu_array();
+    let read = |p: &std::path::Path| Recording::read(p, &array).unwrap();
+    let clean = diagnose(&read(&real(2)), &array, &[read(&real(3))]);
+    let with = diagnose(&read(&injected[0]), &array, &[read(&injected[1])]);
+    assert!(named_on(&with, "scale_factor_quadratic").contains(&4), "{:?} {:?}", with.findings, with.not_named);
+    assert!(named_on(&with, "bias_time_drift").contains(&10), "{:?} {:?}", with.findings, with.not_named);
+    let k = &clean.calibration.fit.params.scale_factor;
+    // Input-referred: the output term V s^2 is k V u^2 + lower orders (absorbed by the bias and the scale
+    // factor); the output drift V t is V / k of input.
+    for (name, j, want) in [("scale_factor_quadratic", 4, 1.5e-4 * k[4]), ("bias_time_drift", 10, 1e-4 / k[10])] {
+        let (w, c) = (tried(&with, name), tried(&clean, name));
+        let extra = w.value[j] - c.value[j];
+        assert!((extra - want).abs() < w.sigma[j], "{name} on {}: {extra} against {want} +- {}", j + 1, w.sigma[j]);
+    }
+    for d in [&clean, &with] {
+        assert_eq!(tried(d, "cross_axis").unseen, 48);
+        assert_eq!(tried(d, "sampling_delay").unseen, 1);
+        for name in ["bias_time_drift", "scale_factor_quadratic", "scale_factor_cubic", "cross_coupling"] {
+            assert_eq!(tried(d, name).unseen, 0, "{name}");
+        }
+    }
+}
+
+/// Item 3 on simulated recordings: an input-dependent scale factor made by the simulator's truth (the
+/// accelerometer's response to its true reading, `s = k (b + u + c u^2)`, applied to the true reading of the
+/// protocol simulator, not to the fitted state) in both recordings of a pair is named on its accelerometer
+/// alone and recovered within 3 sigma.
+#[test]
+fn a_quadratic_scale_factor_hidden_by_the_simulator_is_named_on_its_accelerometer() {
+    let array = mimu_array();
+    let t = truth(&array);
+    let c = 2e-4;
+    let j = 6;
+    let hide = |seed: u64| {
+        let mut r = recording(&array, &t, seed);
+        let range = array.ranges_m_s2[j];
+        for i in 0..r.samples() {
+            let s = r.outputs[(i, j)];
+            let u = s / t.scale_factor[j] - t.bias_m_s2[j];
+            r.outputs[(i, j)] = (s + t.scale_factor[j] * c * u * u).clamp(-range, range);
+        }
+        r
+    };
+    let d = diagnose(&hide(41), &array, &[hide(42)]);
+    assert_eq!(named_on(&d, "scale_factor_quadratic"), [j], "{:?} {:?}", d.findings, d.not_named);
+    let f = d.findings.iter().find(|f| f.name == "scale_factor_quadratic").unwrap();
+    assert!((f.value[0] - c).abs() < 3.0 * f.sigma[0], "{} +- {} against {c}", f.value[0], f.sigma[0]);
+    let others: Vec<&str> =
+        d.findings.iter().map(|f| f.name.as_str()).filter(|n| *n != "scale_factor_quadratic").collect();
+    assert!(others.is_empty(), "{others:?}");
 }

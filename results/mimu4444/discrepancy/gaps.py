@@ -34,7 +34,7 @@ def main(folder):
     print("| --- | --- | --- | --- | --- |")
     for r in runs:
         f = r["fitting"]["before"]
-        named = ", ".join(e["name"] for e in r["effects"]) or "none"
+        named = ", ".join(dict.fromkeys(e["name"] for e in r["effects"])) or "none"
         dyn = f["dynamic_gap"]
         print(f"| {name(r['recording'])} | {f['static_chi2_dof']:.2f} | {dyn:.0f} | {named} | {r['explanation']} |")
     held_out_table(runs, "static", lambda h: f"{h['gap_before']:.0f} -> {h['gap_after']:.1f}")
@@ -43,7 +43,7 @@ def main(folder):
     print("| fitted on | named | not named (why) |")
     print("| --- | --- | --- |")
     for r in runs:
-        named = ", ".join(e["name"] for e in r["effects"]) or "none"
+        named = ", ".join(dict.fromkeys(e["name"] for e in r["effects"])) or "none"
         why = "; ".join(f"{x['name']}: {x['why']}" for x in r["not_named"]) or "-"
         print(f"| {name(r['recording'])} | {named} | {why} |")
     ks, kz = [], []
@@ -68,6 +68,8 @@ def main(folder):
     print("| --- | --- | --- |")
     for r in runs:
         for e in r["effects"]:
+            if e["name"] != "bias_turn_on":
+                continue
             v = e["value"]
             print(f"| {name(r['recording'])} | {e['p_value_largest']:.1e} | {statistics.median(v):.4f}, {max(v):.4f} |")
 

@@ -1,0 +1,239 @@
+//! The rows of a fitted recording as blocks for `projected`: one block per static interval (its
+//! mean outputs; local nuisance the pose's two tangent angles) and one per dynamic sample (its
+//! unclipped outputs; local nuisance the motion, 9 unknowns, or 6 with the reference rate), with
+//! the global columns: first the nuisance (`Nuisance`), then each effect's regressor.
+
+use nalgebra::{DMatrix, DVector, Vector3};
+
+use super::projected::{Accumulated, Block, accumulate};
+use super::recorded_effect::{Layout, RecordedEffect, Row};
+use crate::array::Array;
+use crate::selfcal::fit::{DynamicData, StaticData};
+use crate::selfcal::model::{PER_ACCEL, SampleMotion, Sensor, SensorSet, sensors};
+use crate::sensor::misalignment::tilt_basis;
+
+/// The fitted state of one recording.
+#[derive(Debug, Clone, Copy)]
+pub struct RecordingState<'a> {
+    pub array: &'a Array,
+    pub params: &'a SensorSet,
+    pub stat: &'a StaticData,
+    /// Middle time of each static interval, s.
+    pub static_t_s: &'a [f64],
+    pub up: &'a [Vector3<f64>],
+    /// Weight of a static mean: `count / (sigma_j^2 * static_variance_factor)`.
+    pub static_variance_factor: f64,
+    pub dynamic: Option<&'a DynamicData>,
+    pub motion: &'a [SampleMotion],
+    /// Weight of one dynamic output per accelerometer.
+    pub dynamic_w: &'a [f64],
+    pub gravity_m_s2: f64,
+    /// The recording's middle time, s.
+    pub t_mid_s: f64,
+}
+
+/// The global nuisance re-adjusted with the effects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Nuisance {
+    /// Nothing (a held-out recording with only its poses and motion refitted).
+    Nothing,
+    /// Every parameter of the baseline (`PER_ACCEL` per accelerometer, `selfcal::model` order):
+    /// the fitting recording.
+    Baseline,
+    /// Each accelerometer's bias: a held-out recording with a turn-on bias.
+    Bias,
+    /// Each accelerometer's bias, then each one's scale factor.
+    BiasAndScale,
+}
+
+impl Nuisance {
+    pub fn columns(&self, n: usize) -> usize {
+        match self {
+            Self::Nothing => 0,
+            Self::Baseline => PER_ACCEL * n,
+            Self::Bias => n,
+            Self::BiasAndScale => 2 * n,
+        }
+    }
+
+    fn regress(
+        &self,
+        j: usize,
+        n: usize,
+        s: &Sensor,
+        q: &Vector3<f64>,
+        d_location: Option<Vector3<f64>>,
+        out: &mut [f64],
+    ) {
+        let d = s.d_intrinsic(q);
+        match self {
+            Self::Nothing => {}
+            Self::Baseline => {
+                out[PER_ACCEL * j..PER_ACCEL * j + 4].copy_from_slice(&d);
+                if let Some(l) = d_location {
+                    out[PER_ACCEL * j + 4..PER_ACCEL * j + 7].copy_from_slice(l.as_slice());
+                }
+            }
+            Self::Bias => out[j] = d[1],
+            Self::BiasAndScale => {
+                out[j] = d[1];
+                out[n + j] = d[0];
+            }
+        }
+    }
+}
+
+/// The accumulations of a recording, the static and the dynamic phase apart, and each effect's
+/// first column (after the nuisance's).
+#[derive(Debug, Clone)]
+pub struct RecordingNormal {
+    pub statics: Accumulated,
+    pub dynamics: Accumulated,
+    pub offsets: Vec<usize>,
+    pub nuisance_columns: usize,
+}
+
+impl RecordingNormal {
+    /// Both phases together.
+    pub fn total(&self) -> Accumulated {
+        let mut t = self.statics.clone();
+        t.merge(&self.dynamics);
+        t
+    }
+    /// The nuisance's column indices.
+    pub fn nuisance(&self) -> Vec<usize> {
+        (0..self.nuisance_columns).collect()
+    }
+    /// The column indices of effect `e` (its index in the list accumulated).
+    pub fn effect_columns(&self, e: usize, parameters: usize) -> Vec<usize> {
+        (self.offsets[e]..self.offsets[e] + parameters).collect()
+    }
+}
+
+/// Accumulates `state`'s rows with the `nuisance` and the `effects` columns.
+pub fn accumulate_recording(state: &RecordingState, nuisance: Nuisance, effects: &[RecordedEffect]) -> RecordingNormal {
+    let array = state.array;
+    let n = array.len();
+    let layout = Layout::new(array);
+    let sens = sensors(array, state.params);
+    let nominal: Vec<Vector3<f64>> = array.accelerometers().iter().map(|a| a.axis).collect();
+    let g0 = nuisance.columns(n);
+    let mut offsets = Vec::with_capacity(effects.len());
+    let mut cols = g0;
+    for e in effects {
+        offsets.push(cols);
+        cols += e.parameters(&layout);
+    }
+    let regress_effects = |row: &Row, out: &mut [f64]| {
+        for (e, &o) in effects.iter().zip(&offsets) {
+            let p = e.parameters(&layout);
+            e.regress(row, &layout, &mut out[o..o + p]);
+        }
+    };
+    let g = state.gravity_m_s2;
+    let stat = state.stat;
+    let statics = accumulate(stat.means.nrows(), cols, true, |p| {
+        let u = state.up[p];
+        let (e1, e2) = tilt_basis(&u);
+        let q = u * g;
+        let mut local = DMatrix::zeros(n, 2);
+        let mut columns = DMatrix::zeros(n, cols);
+        let mut residual = DVector::zeros(n);
+        let mut weight = DVector::zeros(n);
+        let mut buf = vec![0.0; cols];
+        for (j, s) in sens.iter().enumerate() {
+            local[(j, 0)] = s.k * g * s.axis.dot(&e1);
+            local[(j, 1)] = s.k * g * s.axis.dot(&e2);
+            buf.iter_mut().for_each(|v| *v = 0.0);
+            nuisance.regress(j, n, s, &q, None, &mut buf);
+            let row = Row {
+                j,
+                k: s.k,
+                axis: s.axis,
+                nominal_axis: nominal[j],
+                q_m_s2: q,
+                dq_dt_m_s3: Vector3::zeros(),
+                t_from_mid_s: state.static_t_s[p] - state.t_mid_s,
+                d_omega: None,
+                reference_rate_rad_s: None,
+            };
+            regress_effects(&row, &mut buf);
+            columns.row_mut(j).copy_from_slice(&buf);
+            residual[j] = stat.means[(p, j)] - s.output(&q);
+            weight[j] = stat.counts[p] as f64 / (stat.sigma[j].powi(2) * state.static_variance_factor);
+        }
+        Some(Block { local, columns, residual, weight })
+    });
+    let dynamics = match state.dynamic {
+        Some(d) if !state.motion.is_empty() => {
+            let reference = d.reference_rate_rad_s.as_ref();
+            let nlocal = if reference.is_some() { 6 } else { 9 };
+            let rates = motion_rates(d, state.motion);
+            accumulate(d.samples(), cols, false, |i| {
+                let m = &state.motion[i];
+                let (df, dalpha) = rates[i];
+                let mut local = DMatrix::zeros(n, nlocal);
+                let mut columns = DMatrix::zeros(n, cols);
+                let mut residual = DVector::zeros(n);
+                let mut weight = DVector::zeros(n);
+                let mut buf = vec![0.0; cols];
+                let w = &m.omega_rad_s;
+                let al = &m.alpha_rad_s2;
+                for (j, s) in sens.iter().enumerate() {
+                    if !d.used[i * n + j] {
+                        continue;
+                    }
+                    let r = &s.position_m;
+                    let q = m.specific_force_m_s2(r);
+                    let dq = df + dalpha.cross(r) + al * w.dot(r) + w * al.dot(r) - r * (2.0 * w.dot(al));
+                    let dm = s.d_motion(m);
+                    for c in 0..nlocal {
+                        local[(j, c)] = dm[c];
+                    }
+                    buf.iter_mut().for_each(|v| *v = 0.0);
+                    nuisance.regress(j, n, s, &q, Some(s.d_location(m)), &mut buf);
+                    let row = Row {
+                        j,
+                        k: s.k,
+                        axis: s.axis,
+                        nominal_axis: nominal[j],
+                        q_m_s2: q,
+                        dq_dt_m_s3: dq,
+                        t_from_mid_s: d.t_s[i] - state.t_mid_s,
+                        d_omega: Some([dm[6], dm[7], dm[8]]),
+                        reference_rate_rad_s: reference.map(|r| r[i]),
+                    };
+                    regress_effects(&row, &mut buf);
+                    columns.row_mut(j).copy_from_slice(&buf);
+                    residual[j] = d.outputs[(i, j)] - s.output(&q);
+                    weight[j] = state.dynamic_w[j];
+                }
+                Some(Block { local, columns, residual, weight })
+            })
+        }
+        _ => Accumulated::zeros(cols),
+    };
+    RecordingNormal { statics, dynamics, offsets, nuisance_columns: g0 }
+}
+
+/// The time derivatives of the specific force at the origin and of the angular acceleration at
+/// every sample: central differences within a run, one-sided at its ends, zero for a run of one.
+fn motion_rates(d: &DynamicData, motion: &[SampleMotion]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+    let mut out = vec![(Vector3::zeros(), Vector3::zeros()); d.samples()];
+    for (s, e) in d.runs() {
+        if e - s < 2 {
+            continue;
+        }
+        for i in s..e {
+            let (a, b) = (if i > s { i - 1 } else { i }, if i + 1 < e { i + 1 } else { i });
+            let dt = d.t_s[b] - d.t_s[a];
+            if dt > 0.0 {
+                out[i] = (
+                    (motion[b].f_m_s2 - motion[a].f_m_s2) / dt,
+                    (motion[b].alpha_rad_s2 - motion[a].alpha_rad_s2) / dt,
+                );
+            }
+        }
+    }
+    out
+}
