@@ -224,11 +224,11 @@ fn motion_rates(d: &DynamicData, motion: &[SampleMotion]) -> Vec<(Vector3<f64>, 
         if e - s < 2 {
             continue;
         }
-        for i in s..e {
+        for (i, slot) in out.iter_mut().enumerate().take(e).skip(s) {
             let (a, b) = (if i > s { i - 1 } else { i }, if i + 1 < e { i + 1 } else { i });
             let dt = d.t_s[b] - d.t_s[a];
             if dt > 0.0 {
-                out[i] = (
+                *slot = (
                     (motion[b].f_m_s2 - motion[a].f_m_s2) / dt,
                     (motion[b].alpha_rad_s2 - motion[a].alpha_rad_s2) / dt,
                 );
