@@ -684,22 +684,6 @@ pub fn diagnose_recordings(
                 "sigma_m": sp.sigma_m,
                 "p_value": sp.p_value,
             })).collect::<Vec<_>>(),
-            "fitting_after_each": d.fitting_after_each.iter().map(|(name, g)| serde_json::json!({
-                "effect": name,
-                "gap": g.static_chi2_dof,
-                "dynamic_gap": g.dynamic,
-            })).collect::<Vec<_>>(),
-            "rank_tests": d.ranks.iter().map(|r| serde_json::json!({
-                "name": r.name, "parameters": r.parameters, "unseen": r.unseen,
-                "value": r.value, "sigma": r.sigma,
-            })).collect::<Vec<_>>(),
-            "sensing_points": d.sensing_points.iter().map(|sp| serde_json::json!({
-                "package": sp.package + 1,
-                "accelerometers": sp.accelerometers.iter().map(|j| j + 1).collect::<Vec<_>>(),
-                "difference_m": sp.difference_m,
-                "sigma_m": sp.sigma_m,
-                "p_value": sp.p_value,
-            })).collect::<Vec<_>>(),
             "effects": d.findings.iter().map(|f| serde_json::json!({
                 "name": f.name,
                 "accelerometer": f.accelerometer.map(|j| j + 1),
