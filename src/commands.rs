@@ -675,7 +675,7 @@ pub fn diagnose_recordings(
             })).collect::<Vec<_>>(),
             "rank_tests": d.ranks.iter().map(|r| serde_json::json!({
                 "name": r.name, "parameters": r.parameters, "unseen": r.unseen,
-                "value": r.value, "sigma": r.sigma,
+                "value": r.value, "sigma": r.sigma, "p_value_joint": r.p_value_joint,
             })).collect::<Vec<_>>(),
             "sensing_points": d.sensing_points.iter().map(|sp| serde_json::json!({
                 "package": sp.package + 1,

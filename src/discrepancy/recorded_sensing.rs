@@ -30,7 +30,9 @@ pub fn sensing_points(total: &Accumulated, layout: &Layout, params: &SensorSet) 
     let n = params.len();
     let g: Vec<usize> = (0..PER_ACCEL * n).collect();
     let ngg = DMatrix::from_fn(g.len(), g.len(), |i, j| total.normal[(g[i], g[j])]);
-    let mgg = DMatrix::from_fn(g.len(), g.len(), |i, j| total.meat[(g[i], g[j])]);
+    // The spread of the scores: the dynamic samples' sandwich and the static intervals' model
+    // information (`projected`; at the baseline's own solution, with its variance factor).
+    let mgg = DMatrix::from_fn(g.len(), g.len(), |i, j| total.meat[(g[i], g[j])] + total.model_normal[(g[i], g[j])]);
     let (pg, _) = symmetric_pinv(&ngg, 1e-11);
     let cov = &pg * mgg * &pg;
     let mut out = Vec::new();

@@ -43,6 +43,11 @@ pub struct RankTest {
     /// a delay relative to the median package).
     pub value: Vec<f64>,
     pub sigma: Vec<f64>,
+    /// Their robust covariance.
+    pub covariance: nalgebra::DMatrix<f64>,
+    /// Wald test of every parameter against zero at once, with the robust covariance (over the
+    /// seen directions): the effect as a whole, before owners are picked.
+    pub p_value_joint: f64,
 }
 
 /// What the library found.
@@ -132,6 +137,8 @@ pub fn try_effects(
             unseen: tf.unseen,
             value: tf.value.clone(),
             sigma: tf.sigma_robust.clone(),
+            covariance: tf.covariance_robust.clone(),
+            p_value_joint: wald_p(&tf.value, &tf.covariance_robust),
         });
         if tf.unseen == p {
             out.not_named.push((

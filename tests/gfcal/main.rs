@@ -13,6 +13,7 @@ mod noise;
 mod pose;
 mod protocol;
 mod recorded;
+mod recorded_generators;
 mod reference;
 mod report;
 mod sample_rates;
