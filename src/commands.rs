@@ -535,12 +535,6 @@ pub fn diagnose_recordings(
     if !(alpha > 0.0 && alpha < 1.0) {
         return Err(InputError::Other(format!("--alpha must be between 0 and 1, got {alpha}")).into());
     }
-    if report.is_some() {
-        return Err(InputError::Other(
-            "--report is not available for recordings yet (use --json, and `gfcal calibrate --report`)".into(),
-        )
-        .into());
-    }
     let path = table.path.as_path();
     let array = gfcal::config::array::load_recording_array(array_path).map_err(InputError::Config)?;
     let rec = Recording::from_table(table, &array).map_err(|e| InputError::Other(e.to_string()))?;
@@ -702,6 +696,11 @@ pub fn diagnose_recordings(
         gfcal::io::write_atomic(json_path, (serde_json::to_string_pretty(&body)? + "\n").as_bytes())
             .with_context(|| format!("cannot write {}", json_path.display()))?;
         eprintln!("wrote {}", json_path.display());
+    }
+    if let Some(path) = report {
+        let (html, _) = gfcal::report::recorded::recorded_report(&d, &rec, &array, settings.fit.gravity_m_s2)?;
+        gfcal::io::write_atomic(path, html.as_bytes()).with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!("wrote {}", path.display());
     }
     Ok(())
 }

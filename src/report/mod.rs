@@ -6,6 +6,7 @@ pub mod calibration;
 pub mod diagnosis;
 pub mod html;
 pub mod plot;
+pub mod recorded;
 pub mod run;
 
 use std::path::PathBuf;

@@ -379,3 +379,36 @@ fn effects_injected_into_real_recordings_are_named_on_their_accelerometer_and_re
         }
     }
 }
+
+/// `--report` on recordings: the page has the gap after each addition, the effects, the rank tests, the
+/// sensing points and the residual figure (rate, input level, time), and the figure has data.
+#[test]
+fn diagnose_writes_a_report_for_recordings() {
+    let dir = tempfile::tempdir().unwrap();
+    let html = dir.path().join("diagnose.html");
+    let o = gfcal(&[
+        "diagnose",
+        real(1).to_str().unwrap(),
+        "--array",
+        ARRAY,
+        "--held-out",
+        real(2).to_str().unwrap(),
+        "--report",
+        html.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let page = std::fs::read_to_string(&html).unwrap();
+    for says in [
+        "Gap after each addition",
+        "Effects named",
+        "Rank tests",
+        "Sensing points inside each package",
+        "dynamic residual RMS against the rate",
+        "dynamic residual RMS against the input level",
+        "static interval means against time",
+        "bias_turn_on",
+    ] {
+        assert!(page.contains(says), "{says} missing");
+    }
+    assert!(page.matches("<circle").count() > 50, "the residual figure has its points");
+}
