@@ -23,4 +23,5 @@ pub mod report;
 pub mod rng;
 pub mod selfcal;
 pub mod sensor;
+pub mod signal;
 pub mod units;

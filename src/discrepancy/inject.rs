@@ -86,32 +86,13 @@ pub fn inject(
             "bias_time_drift" => x + value * (t[i] - t0),
             "scale_factor_quadratic" => x + value * x * x,
             "scale_factor_cubic" => x + value * x * x * x,
-            _ => fractional_delay(&original, i, value / mean_dt),
+            _ => crate::signal::fractional_delay(&original, i, value / mean_dt),
         };
         if v.abs() > range {
             *v = range.copysign(*v);
         }
     }
     Ok(())
-}
-
-/// `y` at index `i - d` (`d` in samples) by a Hann-windowed sinc over 16 neighbours each side,
-/// normalised to unit gain; the ends are held.
-fn fractional_delay(y: &[f64], i: usize, d: f64) -> f64 {
-    const HALF: i64 = 16;
-    let at = i as f64 - d;
-    let mut num = 0.0;
-    let mut den = 0.0;
-    let base = at.floor() as i64;
-    for k in base - HALF + 1..=base + HALF {
-        let x = at - k as f64;
-        let sinc = if x.abs() < 1e-12 { 1.0 } else { (std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x) };
-        let w = 0.5 * (1.0 + (std::f64::consts::PI * x / HALF as f64).cos());
-        let idx = k.clamp(0, y.len() as i64 - 1) as usize;
-        num += sinc * w * y[idx];
-        den += sinc * w;
-    }
-    if den != 0.0 { num / den } else { y[i] }
 }
 
 /// `y` at `at` by linear interpolation over increasing `t` (held at the ends).
@@ -129,20 +110,7 @@ fn interpolate(t: &[f64], y: &[f64], at: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::{fractional_delay, interpolate};
-
-    #[test]
-    fn the_fractional_delay_delays_a_band_limited_sinusoid() {
-        // 5 Hz at 62.5 Hz, delayed by 0.4 ms: the closed form sin(w (t - V)).
-        let dt = 0.016;
-        let w = 2.0 * std::f64::consts::PI * 5.0;
-        let y: Vec<f64> = (0..400).map(|i| (w * i as f64 * dt).sin()).collect();
-        for i in 50..350 {
-            let want = (w * (i as f64 * dt - 4e-4)).sin();
-            assert!((fractional_delay(&y, i, 4e-4 / dt) - want).abs() < 2e-3, "{i}");
-        }
-        assert_eq!(fractional_delay(&y, 100, 0.0), y[100]);
-    }
+    use super::interpolate;
 
     #[test]
     fn interpolation_is_linear_and_held_at_the_ends() {

@@ -251,7 +251,7 @@ fn motion_rates(d: &DynamicData, motion: &[SampleMotion]) -> Vec<(Vector3<f64>, 
                 );
                 continue;
             }
-            let taps = differentiator(half);
+            let taps = crate::signal::differentiator(half);
             let (mut df, mut dalpha) = (Vector3::zeros(), Vector3::zeros());
             for (k, c) in taps.iter().enumerate() {
                 let k = k + 1;
@@ -266,17 +266,3 @@ fn motion_rates(d: &DynamicData, motion: &[SampleMotion]) -> Vec<(Vector3<f64>, 
 
 /// Neighbours each side of the band-limited differentiator.
 pub const DIFFERENTIATOR_HALF: usize = 4;
-
-/// Taps `c_1..c_half` of the differentiator `x'(i) = sum_k c_k (x[i+k] - x[i-k]) / dt` (see
-/// [`motion_rates`]): `sum_k 2 k c_k = 1`.
-pub fn differentiator(half: usize) -> Vec<f64> {
-    let raw: Vec<f64> = (1..=half)
-        .map(|k| {
-            let sign = if k % 2 == 1 { 1.0 } else { -1.0 };
-            let window = 0.5 * (1.0 + (std::f64::consts::PI * k as f64 / (half + 1) as f64).cos());
-            sign / k as f64 * window
-        })
-        .collect();
-    let norm: f64 = raw.iter().enumerate().map(|(k, c)| 2.0 * (k + 1) as f64 * c).sum();
-    raw.iter().map(|c| c / norm).collect()
-}

@@ -47,7 +47,16 @@ pub struct GyroCheck {
     pub median_magnitude_ratio: f64,
     /// `(low, high, samples, rms_rad_s, relative)` by reference rate, rad/s.
     pub by_rate: Vec<(f64, f64, usize, f64, f64)>,
+    /// The lag of the accelerometers behind the gyroscopes that best aligns the two rates (the
+    /// gyroscopes' rate taken at `t - lag` by a band-limited fractional delay; searched over
+    /// +-[`LAG_SEARCH_S`] in steps of [`LAG_STEP_S`]), and the RMS difference at it.
+    pub accelerometer_lag_s: f64,
+    pub rms_at_lag_rad_s: f64,
 }
+
+/// The lag search of [`GyroCheck`]: half-width and step, s.
+pub const LAG_SEARCH_S: f64 = 5e-3;
+pub const LAG_STEP_S: f64 = 1e-4;
 
 /// A finished calibration of one recording.
 #[derive(Debug, Clone)]
@@ -232,7 +241,33 @@ fn gyro_check(rec: &Recording, index: &[usize], fit: &Fit, bias: &Vector3<f64>) 
             (e[0], e[1], sel.len(), d, d / r)
         })
         .collect();
+    // The lag: the gyroscopes' rate delayed by `lag` against the same gyroscope-free rate.
+    let dt =
+        if rec.t_s.len() > 1 { (rec.t_s[rec.t_s.len() - 1] - rec.t_s[0]) / (rec.t_s.len() - 1) as f64 } else { 0.0 };
+    let columns: Vec<Vec<f64>> = (0..3).map(|a| rec.gyro_rate_rad_s.iter().map(|w| w[a]).collect()).collect();
+    let used: Vec<(usize, usize)> =
+        index.iter().enumerate().filter(|(_, i)| !rec.gyro_clipped[**i]).map(|(k, &i)| (k, i)).collect();
+    let steps = (LAG_SEARCH_S / LAG_STEP_S).round() as i64;
+    let (mut accelerometer_lag_s, mut rms_at_lag_rad_s) = (0.0, d);
+    if dt > 0.0 {
+        for step in -steps..=steps {
+            let lag = step as f64 * LAG_STEP_S;
+            let ss: f64 = used
+                .iter()
+                .map(|&(k, i)| {
+                    let reference = Vector3::from_fn(|a, _| crate::signal::fractional_delay(&columns[a], i, lag / dt));
+                    (fit.motion[k].omega_rad_s - (reference - bias)).norm_squared()
+                })
+                .sum();
+            let rms = (ss / used.len().max(1) as f64).sqrt();
+            if rms < rms_at_lag_rad_s {
+                (accelerometer_lag_s, rms_at_lag_rad_s) = (lag, rms);
+            }
+        }
+    }
     GyroCheck {
+        accelerometer_lag_s,
+        rms_at_lag_rad_s,
         samples: pairs.len(),
         rms_rad_s: d,
         relative: d / r,

@@ -97,6 +97,8 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
             "aligned_rms_rad_s": num(g.aligned_rms_rad_s),
             "frame_rotation_rad": num(g.frame_rotation_rad),
             "median_magnitude_ratio": num(g.median_magnitude_ratio),
+            "accelerometer_lag_s": num(g.accelerometer_lag_s),
+            "rms_at_lag_rad_s": num(g.rms_at_lag_rad_s),
             "by_rate": g.by_rate.iter().map(|(lo, hi, c, d, r)| json!({
                 "low_rad_s": lo, "high_rad_s": num(*hi), "samples": c, "rms_rad_s": num(*d), "relative": num(*r)
             })).collect::<Vec<_>>(),
