@@ -14,6 +14,7 @@
 //! | `bias_time_drift` | `s + V (t - t_0)` | m/s^2/s |
 //! | `scale_factor_quadratic` | `s + V s^2` | 1/(m/s^2) |
 //! | `scale_factor_cubic` | `s + V s^3` | 1/(m/s^2)^2 |
+//! | `cross_coupling` | `s + V s (+-s_K)`, `K` the axis of the same package along the first tilt direction `e1` of `s`'s nominal axis (`sensor::misalignment::tilt_basis`), signed so that `+-s_K` reads `e1 . q` | 1/(m/s^2) |
 //! | `sampling_delay` | `s(t - V)`: a fractional delay by a windowed-sinc interpolator over 2 x 16 neighbours (band-limited to the sample rate's Nyquist; uniform sampling at the recording's mean interval assumed) | s |
 //!
 //! The delay's interpolator is band-limited rather than linear: at 62.5 Hz a hand-held rotation
@@ -24,8 +25,14 @@ use crate::io::table::Table;
 use crate::selfcal::recording::RecordingArray;
 
 /// The effects `gfcal inject` can add.
-pub const INJECTABLE: [&str; 5] =
-    ["bias_turn_on", "bias_time_drift", "scale_factor_quadratic", "scale_factor_cubic", "sampling_delay"];
+pub const INJECTABLE: [&str; 6] = [
+    "bias_turn_on",
+    "bias_time_drift",
+    "scale_factor_quadratic",
+    "scale_factor_cubic",
+    "cross_coupling",
+    "sampling_delay",
+];
 
 /// Why an effect cannot be injected.
 #[derive(Debug, thiserror::Error)]
@@ -41,6 +48,10 @@ pub enum InjectError {
     MissingColumn { path: std::path::PathBuf, column: String, j: usize, array: String },
     #[error("{}: has no column `t_s`", path.display())]
     NoTime { path: std::path::PathBuf },
+    #[error(
+        "--effect cross_coupling: accelerometer {j} of {array} has no axis in its package (same position) along its first cross direction, which reads the force it couples to"
+    )]
+    NoPartner { j: usize, array: String },
 }
 
 /// Adds `effect` of size `value` to accelerometer `accelerometer` (1-based) of `table`.
@@ -69,8 +80,26 @@ pub fn inject(
         path: table.path.clone(),
         column: column.clone(),
         j: accelerometer,
-        array: array_name,
+        array: array_name.clone(),
     })?;
+    // The cross-coupling's partner: the axis of the same package along e1, and its sign.
+    let partner: Option<(Vec<f64>, f64)> = if effect == "cross_coupling" {
+        let acc = array.array.accelerometers();
+        let (e1, _) = crate::sensor::misalignment::tilt_basis(&acc[j].axis);
+        let found = (0..n).find(|&m| {
+            m != j && (acc[m].position_m - acc[j].position_m).norm() < 1e-9 && acc[m].axis.dot(&e1).abs() > 0.99
+        });
+        let m = found.ok_or_else(|| InjectError::NoPartner { j: accelerometer, array: array_name.clone() })?;
+        let col = table.column(&array.accelerometer_columns[m]).ok_or_else(|| InjectError::MissingColumn {
+            path: table.path.clone(),
+            column: array.accelerometer_columns[m].clone(),
+            j: m + 1,
+            array: array_name.clone(),
+        })?;
+        Some((col.to_vec(), acc[m].axis.dot(&e1).signum()))
+    } else {
+        None
+    };
     let range = array.ranges_m_s2[j];
     let s = &mut table.data[k];
     let t0 = t.first().copied().unwrap_or(0.0);
@@ -86,6 +115,7 @@ pub fn inject(
             "bias_time_drift" => x + value * (t[i] - t0),
             "scale_factor_quadratic" => x + value * x * x,
             "scale_factor_cubic" => x + value * x * x * x,
+            "cross_coupling" => partner.as_ref().map_or(x, |(p, sign)| x + value * x * sign * p[i]),
             _ => crate::signal::fractional_delay(&original, i, value / mean_dt),
         };
         if v.abs() > range {

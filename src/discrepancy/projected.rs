@@ -307,6 +307,13 @@ pub fn fit_terms(acc: &Accumulated, nuisance: &[usize], terms: &[usize]) -> Term
     }
 }
 
+/// The change of the nuisance `nuisance` that re-adjusting it alone would make (zero at a fit's
+/// exact solution; a fit stopped at its tolerance, or weighted otherwise, leaves a little).
+pub fn nuisance_step(acc: &Accumulated, nuisance: &[usize]) -> DVector<f64> {
+    let (pg, _) = symmetric_pinv(&sub(&acc.normal, nuisance, nuisance), 1e-11);
+    pg * subv(&acc.score, nuisance)
+}
+
 /// The weighted residual sum of squares of `acc` after the global nuisance `nuisance` is
 /// re-adjusted with the terms `terms` held at `theta` (`theta` empty: the terms left out),
 /// the re-adjustment taken from `adjust` (the accumulation of every phase, so that one phase's

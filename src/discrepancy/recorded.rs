@@ -31,7 +31,7 @@ use std::path::PathBuf;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use super::diagnose::Explanation;
-use super::recorded_blocks::{Nuisance, RecordingState, accumulate_recording};
+use super::recorded_blocks::{Nuisance, RecordingState, accumulate_recording, refitted_columns};
 use super::recorded_effect::{Layout, RecordedEffect};
 use super::recorded_sensing::{SensingPoint, sensing_points};
 use super::recorded_trial::{HeldOutNormal, RankTest, try_effects};
@@ -290,7 +290,7 @@ pub fn diagnose_recordings(
         gravity_m_s2: g,
         t_mid_s: middle(&fitting.t_s),
     };
-    let normal_a = accumulate_recording(&state_a, Nuisance::Baseline, &effects);
+    let normal_a = accumulate_recording(&state_a, Nuisance::Baseline, None, &effects);
     let sensing = sensing_points(&normal_a.total(), &layout, &fit.params);
     let mut held = Vec::with_capacity(held_out.len());
     for (other, score) in held_out.iter().zip(&scores) {
@@ -317,7 +317,13 @@ pub fn diagnose_recordings(
             gravity_m_s2: g,
             t_mid_s: st.t_mid_s,
         };
-        held.push(HeldOutNormal { normal: accumulate_recording(&state, nuisance_b, &effects), gap: score.after });
+        // The baseline's layout, so that the fitting recording's change of every parameter with an
+        // effect is carried over; only the turn-on parameters named are refitted here.
+        let refit_b = refitted_columns(nuisance_b, array.array.len());
+        held.push(HeldOutNormal {
+            normal: accumulate_recording(&state, Nuisance::Baseline, Some(refit_b), &effects),
+            gap: score.after,
+        });
     }
     let trial = try_effects(&normal_a, fitting_gap, &held, &effects, &layout, alpha);
     for (s, each) in scores.iter_mut().zip(trial.held_out_after_each) {

@@ -46,6 +46,18 @@ pub enum Nuisance {
     BiasAndScale,
 }
 
+/// What a held-out recording refits of the baseline's parameters (their columns in the
+/// [`Nuisance::Baseline`] layout, which held-out recordings are accumulated with too, so that the
+/// fitting recording's change of every parameter can be carried over to them).
+pub fn refitted_columns(refit: Nuisance, n: usize) -> Vec<usize> {
+    match refit {
+        Nuisance::Baseline => (0..PER_ACCEL * n).collect(),
+        Nuisance::Nothing => Vec::new(),
+        Nuisance::Bias => (0..n).map(|j| PER_ACCEL * j + 1).collect(),
+        Nuisance::BiasAndScale => (0..n).flat_map(|j| [PER_ACCEL * j + 1, PER_ACCEL * j]).collect(),
+    }
+}
+
 impl Nuisance {
     pub fn columns(&self, n: usize) -> usize {
         match self {
@@ -91,6 +103,8 @@ pub struct RecordingNormal {
     pub dynamics: Accumulated,
     pub offsets: Vec<usize>,
     pub nuisance_columns: usize,
+    /// The nuisance columns refitted on this recording (all of them on the fitting recording).
+    pub refit: Vec<usize>,
 }
 
 impl RecordingNormal {
@@ -100,9 +114,9 @@ impl RecordingNormal {
         t.merge(&self.dynamics);
         t
     }
-    /// The nuisance's column indices.
+    /// The column indices refitted on this recording.
     pub fn nuisance(&self) -> Vec<usize> {
-        (0..self.nuisance_columns).collect()
+        self.refit.clone()
     }
     /// The column indices of effect `e` (its index in the list accumulated).
     pub fn effect_columns(&self, e: usize, parameters: usize) -> Vec<usize> {
@@ -110,8 +124,14 @@ impl RecordingNormal {
     }
 }
 
-/// Accumulates `state`'s rows with the `nuisance` and the `effects` columns.
-pub fn accumulate_recording(state: &RecordingState, nuisance: Nuisance, effects: &[RecordedEffect]) -> RecordingNormal {
+/// Accumulates `state`'s rows with the `nuisance` and the `effects` columns; `refit` says which
+/// nuisance columns this recording refits (`None`: all).
+pub fn accumulate_recording(
+    state: &RecordingState,
+    nuisance: Nuisance,
+    refit: Option<Vec<usize>>,
+    effects: &[RecordedEffect],
+) -> RecordingNormal {
     let array = state.array;
     let n = array.len();
     let layout = Layout::new(array);
@@ -214,7 +234,13 @@ pub fn accumulate_recording(state: &RecordingState, nuisance: Nuisance, effects:
         }
         _ => Accumulated::zeros(cols),
     };
-    RecordingNormal { statics, dynamics, offsets, nuisance_columns: g0 }
+    RecordingNormal {
+        statics,
+        dynamics,
+        offsets,
+        nuisance_columns: g0,
+        refit: refit.unwrap_or_else(|| (0..g0).collect()),
+    }
 }
 
 /// The time derivatives of the specific force at the origin and of the angular acceleration at

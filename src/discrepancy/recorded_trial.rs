@@ -8,10 +8,12 @@
 //! on them alone.
 //!
 //! **On the held-out recordings**, what must differ between recordings is refitted there (poses,
-//! motion, and the turn-on bias and scale factor if they were named): an effect that is a property
-//! of the hardware is carried over at the fitting recording's values and must lower the gap on
-//! every held-out recording; an effect that differs between recordings (`per_recording`) is
-//! refitted on each and must pass its test there too (level `alpha / held-out recordings`).
+//! motion, and the turn-on bias and scale factor if they were named). The fitting recording's
+//! extended model is carried over whole: its re-adjusted baseline parameters (an effect's static
+//! part moves the scale factors and biases it is fitted with) and the effect itself if it is a
+//! property of the hardware, which must then lower the gap on every held-out recording. An effect
+//! that differs between recordings (`per_recording`) is refitted on each and must pass its test
+//! there too (level `alpha / held-out recordings`).
 //! Only then is it named. A named effect joins the model for the effects after it.
 //!
 //! The gaps after each addition are the linearised ones: the phase's gap times the ratio of its
@@ -19,7 +21,7 @@
 
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
-use super::projected::{Accumulated, TermFit, fit_terms, ss_with, symmetric_pinv};
+use super::projected::{Accumulated, TermFit, fit_terms, nuisance_step, ss_with, symmetric_pinv};
 use super::recorded::{Gap, RecordedFinding};
 use super::recorded_blocks::RecordingNormal;
 use super::recorded_effect::{Layout, Owner, RecordedEffect};
@@ -111,6 +113,8 @@ pub fn try_effects(
     let total_a = fitting.total();
     // The fitting recording's nuisance grows with each named effect (fitted jointly there).
     let mut nuisance_a = fitting.nuisance();
+    // The columns of the named effects refitted per recording (not carried over).
+    let mut per_recording_cols: Vec<usize> = Vec::new();
     let base_a = phase_ss(&fitting.statics, &fitting.dynamics, &nuisance_a, &[], &[]);
     // Each held-out recording's accumulations, shifted by the named effects' values.
     let mut current: Vec<(Accumulated, Accumulated)> =
@@ -180,23 +184,43 @@ pub fn try_effects(
         let tf_sel = fit_terms(&total_a, &nuisance_a, &sel_a);
         // (The owners kept are fitted alone: with a common direction unseen, the others are held
         // at zero, which fixes it.)
-        // Held-out recordings.
+        // Held-out recordings (accumulated in the fitting recording's column layout). What the
+        // fitting recording's extended model changes is carried over: every baseline parameter and
+        // every carried-over effect named before, re-adjusted with this one, and this one too unless
+        // it is refitted per recording. Only then is the held-out recording's own part refitted.
+        // (The change the term causes: the re-adjustment without it is left out, as the held-out
+        // recordings' baseline gaps leave it out.)
+        let caused = &tf_sel.nuisance_change - nuisance_step(&total_a, &nuisance_a);
+        let mut carried_cols = Vec::new();
+        let mut carried_vals = Vec::new();
+        for (c, v) in nuisance_a.iter().zip(caused.iter()) {
+            if !per_recording_cols.contains(c) {
+                carried_cols.push(*c);
+                carried_vals.push(*v);
+            }
+        }
+        if !effect.per_recording() {
+            carried_cols.extend_from_slice(&sel_a);
+            carried_vals.extend_from_slice(&tf_sel.value);
+        }
         let mut verdicts = Vec::with_capacity(held_out.len());
         for (h, (s, d)) in held_out.iter().zip(&current) {
             let nb = h.normal.nuisance();
-            let sel_b: Vec<usize> = selected.iter().map(|&i| h.normal.offsets[e_index] + i).collect();
             let before = phase_ss(s, d, &nb, &[], &[]);
+            let (s1, d1) = (s.shifted(&carried_cols, &carried_vals), d.shifted(&carried_cols, &carried_vals));
             let (theta, test_p) = if effect.per_recording() {
-                let mut t = s.clone();
-                t.merge(d);
-                let fb: TermFit = fit_terms(&t, &nb, &sel_b);
+                let mut t = s1.clone();
+                t.merge(&d1);
+                let fb: TermFit = fit_terms(&t, &nb, &sel_a);
                 let pv = wald_p(&fb.value, &fb.covariance_robust);
                 (fb.value, pv)
             } else {
-                (tf_sel.value.clone(), 0.0)
+                (Vec::new(), 0.0)
             };
-            let after = phase_ss(s, d, &nb, &sel_b, &theta);
-            verdicts.push((before, after, theta, test_p, sel_b));
+            let own: &[usize] = if effect.per_recording() { &sel_a } else { &[] };
+            let after = phase_ss(&s1, &d1, &nb, own, &theta);
+            let next = (s1.shifted(own, &theta), d1.shifted(own, &theta));
+            verdicts.push((before, after, next, test_p));
         }
         let lowers = verdicts.iter().all(|(b, a, ..)| a.0 + a.1 < b.0 + b.1);
         let held_level = alpha / held_out.len().max(1) as f64;
@@ -240,11 +264,13 @@ pub fn try_effects(
             });
         }
         nuisance_a.extend_from_slice(&sel_a);
+        if effect.per_recording() {
+            per_recording_cols.extend_from_slice(&sel_a);
+        }
         let now_a = phase_ss(&fitting.statics, &fitting.dynamics, &nuisance_a, &[], &[]);
         out.fitting_after_each.push((name.clone(), scaled(&fitting_gap, base_a, now_a)));
-        for (k, (_, _, theta, _, sel_b)) in verdicts.into_iter().enumerate() {
-            let (s, d) = &current[k];
-            current[k] = (s.shifted(&sel_b, &theta), d.shifted(&sel_b, &theta));
+        for (k, (_, _, next, _)) in verdicts.into_iter().enumerate() {
+            current[k] = next;
             let (s, d) = &current[k];
             let now = phase_ss(s, d, &held_out[k].normal.nuisance(), &[], &[]);
             out.held_out_after_each[k].push((name.clone(), scaled(&held_out[k].gap, base_b[k], now)));

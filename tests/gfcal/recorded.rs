@@ -256,6 +256,7 @@ fn each_injected_effect_changes_its_column_as_documented() {
         ("bias_time_drift", 0.001),
         ("scale_factor_quadratic", 1e-3),
         ("scale_factor_cubic", 1e-4),
+        ("cross_coupling", 1e-3),
         ("sampling_delay", 0.004),
     ] {
         let mut x = table.clone();
@@ -272,6 +273,9 @@ fn each_injected_effect_changes_its_column_as_documented() {
                 "bias_time_drift" => s + v * (t[i] - t[0]),
                 "scale_factor_quadratic" => s + v * s * s,
                 "scale_factor_cubic" => s + v * s * s * s,
+                // Accelerometer 7 is IMU 3's x axis: its first cross direction is +y, IMU 3's y axis
+                // (accelerometer 8, the next column).
+                "cross_coupling" => s + v * s * table.data[col + 1][i],
                 // The column is 3 sin(7 t): delayed by v, 3 sin(7 (t - v)), to the band-limited
                 // interpolator's accuracy, away from the ends (16 samples each side).
                 _ => 3.0 * (7.0 * (t[i] - v)).sin(),
@@ -314,7 +318,8 @@ fn inject_into(from: &std::path::Path, to: &std::path::Path, effect: &str, accel
 
 /// Items 3 and 5 on the real board: an input-dependent scale factor (1.5e-4 /(m/s^2) on accelerometer 5,
 /// 2.4% of the reading at the rail, about 6 robust sigmas), a bias drift (1e-4 m/s^2/s on accelerometer
-/// 11, 0.06 m/s^2 over a recording) and a sampling delay of package 3 (0.4 ms on its three axes, 13 sigmas)
+/// 11, 0.06 m/s^2 over a recording), a cross-coupling of accelerometer 19 with its package's y axis (2e-4
+/// /(m/s^2), 2e-3 /g, about 10 sigmas) and a sampling delay of package 3 (0.4 ms on its three axes, 13 sigmas)
 /// added by `gfcal inject` to real recordings 2 and 3 (a property of the hardware is in every recording)
 /// come back named on their accelerometers and package, each recovered on top of what the clean pair shows
 /// within its sigma. The rank tests are exact: a linear cross-axis sensitivity is a tilt, a
@@ -329,6 +334,7 @@ fn effects_injected_into_real_recordings_are_named_on_their_accelerometer_and_re
         for (step, (effect, j, v)) in [
             ("scale_factor_quadratic", "5", "1.5e-4"),
             ("bias_time_drift", "11", "1e-4"),
+            ("cross_coupling", "19", "2e-4"),
             ("sampling_delay", "7", "4e-4"),
             ("sampling_delay", "8", "4e-4"),
             ("sampling_delay", "9", "4e-4"),
@@ -348,10 +354,17 @@ fn effects_injected_into_real_recordings_are_named_on_their_accelerometer_and_re
     let with = diagnose(&read(&injected[0]), &array, &[read(&injected[1])]);
     assert!(named_on(&with, "scale_factor_quadratic").contains(&4), "{:?} {:?}", with.findings, with.not_named);
     assert!(named_on(&with, "bias_time_drift").contains(&10), "{:?} {:?}", with.findings, with.not_named);
+    assert!(named_on(&with, "cross_coupling").contains(&18), "{:?} {:?}", with.findings, with.not_named);
     let k = &clean.calibration.fit.params.scale_factor;
     // Input-referred: the output term V s^2 is k V u^2 + lower orders (absorbed by the bias and the scale
     // factor); the output drift V t is V / k of input.
-    for (name, j, want) in [("scale_factor_quadratic", 4, 1.5e-4 * k[4]), ("bias_time_drift", 10, 1e-4 / k[10])] {
+    // The cross-coupling V s_19 s_20 is k_19 (V k_20) u_19 (e1 . q) plus terms the baseline absorbs: its first
+    // parameter (along e1 = +y, accelerometer 20's axis) is V k_20.
+    for (name, j, want) in [
+        ("scale_factor_quadratic", 4, 1.5e-4 * k[4]),
+        ("bias_time_drift", 10, 1e-4 / k[10]),
+        ("cross_coupling", 2 * 18, 2e-4 * k[19]),
+    ] {
         let (w, c) = (tried(&with, name), tried(&clean, name));
         let extra = w.value[j] - c.value[j];
         assert!((extra - want).abs() < w.sigma[j], "{name} on {}: {extra} against {want} +- {}", j + 1, w.sigma[j]);

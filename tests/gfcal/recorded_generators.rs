@@ -73,7 +73,11 @@ fn a_quadratic_scale_factor_hidden_by_the_simulator_is_named_on_its_acceleromete
         r
     };
     let d = diagnose(&hide(41), &array, &[hide(42)]);
+    // The quadratic, tried first, is named on the same accelerometer and nothing else of the library: the
+    // rotation phase's readings are not symmetric about zero (the centripetal part has one sign), so u^3 has
+    // a part along u^2. The cubic, fitted on top of it, takes the rest.
     assert_eq!(named_on(&d, "scale_factor_quadratic"), [j], "{:?} {:?}", d.findings, d.not_named);
+    assert_eq!(library_named(&d), ["scale_factor_quadratic", "scale_factor_cubic"]);
     let f = d.findings.iter().find(|f| f.name == "scale_factor_quadratic").unwrap();
     within(f.value[0], c, f.sigma[0], "quadratic");
     assert_eq!(library_named(&d), ["scale_factor_quadratic"]);
@@ -269,4 +273,63 @@ fn the_gyroscope_check_finds_a_lag_made_at_1_khz() {
     let g = cal.gyro_check.expect("gyroscopes");
     assert!((g.accelerometer_lag_s + 1e-3).abs() < 1.5e-4, "lag {} s", g.accelerometer_lag_s);
     assert!(g.rms_at_lag_rad_s < g.rms_rad_s, "{g:?}");
+}
+
+/// A cubic scale factor, `s = k (b + u + c u^3)` on the simulator's true reading, at a size these
+/// recordings can see (c = 2e-5 /(m/s^2)^2: 6% of the reading at 5 g; the real recordings' sigma is about
+/// 2e-6), on accelerometer 16, named there and recovered within 3 sigma.
+#[test]
+fn a_cubic_scale_factor_hidden_by_the_simulator_is_named_on_its_accelerometer() {
+    let array = mimu_array();
+    let t = truth(&array);
+    let (c, j) = (2e-5, 15);
+    let hide = |seed: u64| {
+        let mut r = recording(&array, &t, seed);
+        let range = array.ranges_m_s2[j];
+        for i in 0..r.samples() {
+            let s = r.outputs[(i, j)];
+            let u = s / t.scale_factor[j] - t.bias_m_s2[j];
+            set(&mut r, i, j, s + t.scale_factor[j] * c * u * u * u, range);
+        }
+        r
+    };
+    let d = diagnose(&hide(55), &array, &[hide(56)]);
+    assert_eq!(named_on(&d, "scale_factor_cubic"), [j], "{:?} {:?}", d.findings, d.not_named);
+    // The quadratic, tried first, is named on the same accelerometer and nothing else of the library: the
+    // rotation phase's readings are not symmetric about zero (the centripetal part has one sign), so u^3 has
+    // a part along u^2. The cubic, fitted on top of it, takes the rest.
+    assert_eq!(named_on(&d, "scale_factor_quadratic"), [j], "{:?} {:?}", d.findings, d.not_named);
+    assert_eq!(library_named(&d), ["scale_factor_quadratic", "scale_factor_cubic"]);
+    let f = d.findings.iter().find(|f| f.name == "scale_factor_cubic").unwrap();
+    within(f.value[0], c, f.sigma[0], "cubic");
+}
+
+/// Clean simulated pairs name nothing of the library (nor a turn-on effect) in at least 97 of 100 seeds:
+/// at a nominal familywise 1% per diagnosis, 4 or more would happen with p < 2%. About 7 minutes on two
+/// cores in the test profile, so not in CI: `cargo test --test gfcal clean_simulated_pairs -- --ignored`.
+#[test]
+#[ignore = "100 diagnoses of simulated pairs, about 7 minutes"]
+fn clean_simulated_pairs_name_nothing_in_at_least_97_of_100_seeds() {
+    use rayon::prelude::*;
+    let array = mimu_array();
+    let named: Vec<(u64, Vec<String>)> = (0..100u64)
+        .into_par_iter()
+        .map(|seed| {
+            let t = gfcal::selfcal::simulate::random_truth(
+                &array.array,
+                0.005,
+                0.3,
+                0.004,
+                0.5e-3,
+                &mut trial_rng(1000 + seed, 0),
+            );
+            let a = recording(&array, &t, 2000 + 2 * seed);
+            let b = recording(&array, &t, 2001 + 2 * seed);
+            let d = diagnose(&a, &array, &[b]);
+            (seed, d.findings.iter().map(|f| f.name.clone()).collect())
+        })
+        .collect();
+    let loud: Vec<_> = named.iter().filter(|(_, n)| !n.is_empty()).collect();
+    eprintln!("clean pairs naming something: {} of 100: {loud:?}", loud.len());
+    assert!(loud.len() <= 3, "{loud:?}");
 }
