@@ -23,6 +23,22 @@ fn simulated(array: &RecordingArray, truth: &SensorSet, seed: u64, rate_hz: f64)
     simulate(array, truth, &p, &mut trial_rng(seed, 1)).expect("simulated")
 }
 
+/// A recording simulated at `factor` times 62.5 Hz, decimated to 62.5 Hz; accelerometer `j`'s column read
+/// `late(j)` samples of the fast rate late, the gyroscopes `gyro_late` samples late.
+fn decimated(sim: &Simulated, factor: usize, late: impl Fn(usize) -> usize, gyro_late: usize) -> Recording {
+    let r = &sim.recording;
+    let rows: Vec<usize> = (1..r.samples() / factor).map(|i| i * factor).collect();
+    let n = r.outputs.ncols();
+    let late = &late;
+    let mut out = r.clone();
+    out.t_s = rows.iter().map(|&i| r.t_s[i]).collect();
+    out.outputs = nalgebra::DMatrix::from_fn(rows.len(), n, |k, j| r.outputs[(rows[k] - late(j), j)]);
+    out.clipped = rows.iter().flat_map(|&i| (0..n).map(move |j| r.clipped[(i - late(j)) * n + j])).collect();
+    out.gyro_rate_rad_s = rows.iter().map(|&i| r.gyro_rate_rad_s[i - gyro_late]).collect();
+    out.gyro_clipped = rows.iter().map(|&i| r.gyro_clipped[i - gyro_late]).collect();
+    out
+}
+
 /// The true specific force at accelerometer `j`'s true sensing point, and its true axis.
 fn truth_at(
     array: &RecordingArray,
@@ -159,20 +175,7 @@ fn a_sampling_delay_of_one_package_made_at_1_khz_is_named_on_its_package() {
     let m = 3;
     let factor = 16;
     let hide = |seed: u64| -> Recording {
-        let sim = simulated(&array, &t, seed, 1000.0);
-        let r = &sim.recording;
-        let rows: Vec<usize> = (1..r.samples() / factor).map(|i| i * factor).collect();
-        let mut out = r.clone();
-        out.t_s = rows.iter().map(|&i| r.t_s[i]).collect();
-        out.outputs = nalgebra::DMatrix::from_fn(rows.len(), r.outputs.ncols(), |k, j| {
-            let late = if layout.package_of[j] == m { 1 } else { 0 };
-            r.outputs[(rows[k] - late, j)]
-        });
-        let n = r.outputs.ncols();
-        out.clipped = rows.iter().flat_map(|&i| r.clipped[i * n..(i + 1) * n].to_vec()).collect();
-        out.gyro_rate_rad_s = rows.iter().map(|&i| r.gyro_rate_rad_s[i]).collect();
-        out.gyro_clipped = rows.iter().map(|&i| r.gyro_clipped[i]).collect();
-        out
+        decimated(&simulated(&array, &t, seed, 1000.0), factor, |j| usize::from(layout.package_of[j] == m), 0)
     };
     let d = diagnose(&hide(47), &array, &[hide(48)]);
     let delayed: Vec<Option<usize>> =
@@ -259,16 +262,7 @@ fn the_gyroscope_check_finds_a_lag_made_at_1_khz() {
     let array = mimu_array();
     let t = truth(&array);
     let factor = 16;
-    let sim = simulated(&array, &t, 53, 1000.0);
-    let r = &sim.recording;
-    let rows: Vec<usize> = (1..r.samples() / factor).map(|i| i * factor).collect();
-    let n = r.outputs.ncols();
-    let mut rec = r.clone();
-    rec.t_s = rows.iter().map(|&i| r.t_s[i]).collect();
-    rec.outputs = nalgebra::DMatrix::from_fn(rows.len(), n, |k, j| r.outputs[(rows[k], j)]);
-    rec.clipped = rows.iter().flat_map(|&i| r.clipped[i * n..(i + 1) * n].to_vec()).collect();
-    rec.gyro_rate_rad_s = rows.iter().map(|&i| r.gyro_rate_rad_s[i - 1]).collect();
-    rec.gyro_clipped = rows.iter().map(|&i| r.gyro_clipped[i - 1]).collect();
+    let rec = decimated(&simulated(&array, &t, 53, 1000.0), factor, |_| 0, 1);
     let cal = gfcal::selfcal::calibrate::calibrate(&rec, &array, &CalibrateSettings::default()).expect("calibrated");
     let g = cal.gyro_check.expect("gyroscopes");
     assert!((g.accelerometer_lag_s + 1e-3).abs() < 1.5e-4, "lag {} s", g.accelerometer_lag_s);
