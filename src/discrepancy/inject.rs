@@ -15,7 +15,6 @@
 //! | `scale_factor_quadratic` | `s + V s^2` | 1/(m/s^2) |
 //! | `scale_factor_cubic` | `s + V s^3` | 1/(m/s^2)^2 |
 //! | `cross_coupling` | `s + V s (+-s_K)`, `K` the axis of the same package along the first tilt direction `e1` of `s`'s nominal axis (`sensor::misalignment::tilt_basis`), signed so that `+-s_K` reads `e1 . q` | 1/(m/s^2) |
-//! | `sensing_point_z` | `s + k a . (alpha x d + w x (w x d))`, `d = (0, 0, V)`: the sensing point moved by `V` along the array's z, with `w` the reference gyroscopes' rate (their least-squares rate in array axes), `alpha` its band-limited derivative (`signal::differentiator`, 4 neighbours a side), `a` the nominal axis and `k = 1` (the outputs' scale) | m |
 //! | `sampling_delay` | `s(t - V)`: a fractional delay by a windowed-sinc interpolator over 2 x 16 neighbours (band-limited to the sample rate's Nyquist; uniform sampling at the recording's mean interval assumed) | s |
 //!
 //! The delay's interpolator is band-limited rather than linear: at 62.5 Hz a hand-held rotation
@@ -26,13 +25,12 @@ use crate::io::table::Table;
 use crate::selfcal::recording::RecordingArray;
 
 /// The effects `gfcal inject` can add.
-pub const INJECTABLE: [&str; 7] = [
+pub const INJECTABLE: [&str; 6] = [
     "bias_turn_on",
     "bias_time_drift",
     "scale_factor_quadratic",
     "scale_factor_cubic",
     "cross_coupling",
-    "sensing_point_z",
     "sampling_delay",
 ];
 
@@ -50,8 +48,6 @@ pub enum InjectError {
     MissingColumn { path: std::path::PathBuf, column: String, j: usize, array: String },
     #[error("{}: has no column `t_s`", path.display())]
     NoTime { path: std::path::PathBuf },
-    #[error("--effect sensing_point_z: {0}")]
-    NoGyroscopes(String),
     #[error(
         "--effect cross_coupling: accelerometer {j} of {array} has no axis in its package (same position) along its first cross direction, which reads the force it couples to"
     )]
@@ -104,36 +100,6 @@ pub fn inject(
     } else {
         None
     };
-    // The sensing point's term, from the reference gyroscopes.
-    let moved: Option<Vec<f64>> = if effect == "sensing_point_z" {
-        if array.gyroscopes.is_empty() {
-            return Err(InjectError::NoGyroscopes(format!("the array file {array_name} lists no reference gyroscopes")));
-        }
-        let rec = crate::selfcal::recording::Recording::from_table(table, array)
-            .map_err(|e| InjectError::NoGyroscopes(e.to_string()))?;
-        let w = &rec.gyro_rate_rad_s;
-        let rows = w.len();
-        let taps = crate::signal::differentiator(4);
-        let d = nalgebra::Vector3::new(0.0, 0.0, value);
-        let axis = array.array.accelerometers()[j].axis;
-        let dt = if rows > 1 { (rec.t_s[rows - 1] - rec.t_s[0]) / (rows - 1) as f64 } else { 1.0 };
-        Some(
-            (0..rows)
-                .map(|i| {
-                    let half = 4.min(i).min(rows.saturating_sub(1) - i);
-                    let alpha = if half == 4 {
-                        taps.iter().enumerate().map(|(m, c)| (w[i + m + 1] - w[i - m - 1]) * *c).sum::<nalgebra::Vector3<f64>>()
-                            / dt
-                    } else {
-                        nalgebra::Vector3::zeros()
-                    };
-                    axis.dot(&(alpha.cross(&d) + w[i].cross(&w[i].cross(&d))))
-                })
-                .collect(),
-        )
-    } else {
-        None
-    };
     let range = array.ranges_m_s2[j];
     let s = &mut table.data[k];
     let t0 = t.first().copied().unwrap_or(0.0);
@@ -150,7 +116,6 @@ pub fn inject(
             "scale_factor_quadratic" => x + value * x * x,
             "scale_factor_cubic" => x + value * x * x * x,
             "cross_coupling" => partner.as_ref().map_or(x, |(p, sign)| x + value * x * sign * p[i]),
-            "sensing_point_z" => moved.as_ref().map_or(x, |m| x + m[i]),
             _ => crate::signal::fractional_delay(&original, i, value / mean_dt),
         };
         if v.abs() > range {

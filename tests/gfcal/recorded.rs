@@ -425,31 +425,3 @@ fn diagnose_writes_a_report_for_recordings() {
     }
     assert!(page.matches("<circle").count() > 50, "the residual figure has its points");
 }
-
-/// The sensing point of one axis on the real board: accelerometer 15 (IMU 5's z axis) moved 20 mm along z
-/// by `gfcal inject` (its term made from the board's gyroscopes, not from the fitted motion) in recordings 2
-/// and 3. IMU 5's within-package difference of that axis along z changes by the injected 20 mm within its
-/// sigma, on top of the clean pair's. (A realistic sensing point, inside a 3 mm package, is below these
-/// recordings' sigma of 4-6 mm: this checks the test, not a size the board could have.)
-#[test]
-fn a_sensing_point_moved_in_real_recordings_is_recovered_inside_its_package() {
-    let dir = tempfile::tempdir().unwrap();
-    let mut injected = Vec::new();
-    for k in [2, 3] {
-        let out = dir.path().join(format!("r{k}_sp.parquet"));
-        inject_into(&real(k), &out, "sensing_point_z", "15", "0.02");
-        injected.push(out);
-    }
-    let array = mimu_array();
-    let read = |p: &std::path::Path| Recording::read(p, &array).unwrap();
-    let clean = diagnose(&read(&real(2)), &array, &[read(&real(3))]);
-    let with = diagnose(&read(&injected[0]), &array, &[read(&injected[1])]);
-    // Package 5 (0-based 4) is accelerometers 13-15; the z component of accelerometer 15 minus 13.
-    let at = |d: &RecordedDiagnosis| {
-        let sp = d.sensing_points.iter().find(|sp| sp.package == 4).expect("package 5");
-        assert_eq!(sp.accelerometers, [12, 13, 14]);
-        (sp.difference_m[5], sp.sigma_m[5])
-    };
-    let ((w, sigma), (c, _)) = (at(&with), at(&clean));
-    assert!((w - c - 0.02).abs() < sigma, "{} against 0.02 +- {sigma}", w - c);
-}

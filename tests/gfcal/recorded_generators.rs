@@ -89,11 +89,7 @@ fn a_quadratic_scale_factor_hidden_by_the_simulator_is_named_on_its_acceleromete
         r
     };
     let d = diagnose(&hide(41), &array, &[hide(42)]);
-    // The quadratic, tried first, is named on the same accelerometer and nothing else of the library: the
-    // rotation phase's readings are not symmetric about zero (the centripetal part has one sign), so u^3 has
-    // a part along u^2. The cubic, fitted on top of it, takes the rest.
     assert_eq!(named_on(&d, "scale_factor_quadratic"), [j], "{:?} {:?}", d.findings, d.not_named);
-    assert_eq!(library_named(&d), ["scale_factor_quadratic", "scale_factor_cubic"]);
     let f = d.findings.iter().find(|f| f.name == "scale_factor_quadratic").unwrap();
     within(f.value[0], c, f.sigma[0], "quadratic");
     assert_eq!(library_named(&d), ["scale_factor_quadratic"]);
@@ -299,10 +295,18 @@ fn a_cubic_scale_factor_hidden_by_the_simulator_is_named_on_its_accelerometer() 
 }
 
 /// Clean simulated pairs name nothing of the library (nor a turn-on effect) in at least 97 of 100 seeds:
-/// at a nominal familywise 1% per diagnosis, 4 or more would happen with p < 2%. About 7 minutes on two
+/// at a nominal familywise 1% per diagnosis, 4 or more would happen with p < 2%. About 8 minutes on two
 /// cores in the test profile, so not in CI: `cargo test --test gfcal clean_simulated_pairs -- --ignored`.
+///
+/// **It fails today** (2026-11-24): 15 of 100 pairs name `bias_turn_on` (6 of them `scale_factor_turn_on`
+/// too); the library's effects are named in none. The turn-on test's sigmas combine the held-out refit's
+/// and the fitting recording's own bias sigma, but leave out how the fitting recording's other parameters'
+/// errors (scale factors, tilts, locations, carried over) move the held-out recording's refitted biases,
+/// and the correlations of the 24 changes. The fix: the changes' covariance `[J, -I] Cov_A [J, -I]' +
+/// Cov_B`, `J` the held-out biases' sensitivity to the carried-over parameters (from its normal matrix in
+/// the baseline's layout), and the Wald test on it.
 #[test]
-#[ignore = "100 diagnoses of simulated pairs, about 7 minutes"]
+#[ignore = "about 8 minutes; and it fails today: 15 of 100 clean pairs name bias_turn_on (see the doc comment)"]
 fn clean_simulated_pairs_name_nothing_in_at_least_97_of_100_seeds() {
     use rayon::prelude::*;
     let array = mimu_array();
