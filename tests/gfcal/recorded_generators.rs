@@ -65,6 +65,18 @@ fn set(r: &mut Recording, i: usize, j: usize, s: f64, range: f64) {
     r.clipped[i * n + j] = s.abs() >= range;
 }
 
+/// An input-dependent scale factor `s = k (b + u + c u^power)` on accelerometer `j`, applied to the
+/// true reading (the output less the truth's bias, over its scale factor) of a simulated recording.
+fn with_power(mut r: Recording, array: &RecordingArray, t: &SensorSet, j: usize, c: f64, power: i32) -> Recording {
+    let range = array.ranges_m_s2[j];
+    for i in 0..r.samples() {
+        let s = r.outputs[(i, j)];
+        let u = s / t.scale_factor[j] - t.bias_m_s2[j];
+        set(&mut r, i, j, s + t.scale_factor[j] * c * u.powi(power), range);
+    }
+    r
+}
+
 fn within(value: f64, want: f64, sigma: f64, what: &str) {
     assert!(sigma.is_finite() && sigma > 0.0, "{what}: sigma {sigma}");
     assert!((value - want).abs() < 3.0 * sigma, "{what}: {value} +- {sigma} against {want}");
@@ -78,16 +90,7 @@ fn a_quadratic_scale_factor_hidden_by_the_simulator_is_named_on_its_acceleromete
     let t = truth(&array);
     let c = 2e-4;
     let j = 6;
-    let hide = |seed: u64| {
-        let mut r = recording(&array, &t, seed);
-        let range = array.ranges_m_s2[j];
-        for i in 0..r.samples() {
-            let s = r.outputs[(i, j)];
-            let u = s / t.scale_factor[j] - t.bias_m_s2[j];
-            set(&mut r, i, j, s + t.scale_factor[j] * c * u * u, range);
-        }
-        r
-    };
+    let hide = |seed: u64| with_power(recording(&array, &t, seed), &array, &t, j, c, 2);
     let d = diagnose(&hide(41), &array, &[hide(42)]);
     assert_eq!(named_on(&d, "scale_factor_quadratic"), [j], "{:?} {:?}", d.findings, d.not_named);
     let f = d.findings.iter().find(|f| f.name == "scale_factor_quadratic").unwrap();
@@ -273,16 +276,7 @@ fn a_cubic_scale_factor_hidden_by_the_simulator_is_named_on_its_accelerometer() 
     let array = mimu_array();
     let t = truth(&array);
     let (c, j) = (2e-5, 15);
-    let hide = |seed: u64| {
-        let mut r = recording(&array, &t, seed);
-        let range = array.ranges_m_s2[j];
-        for i in 0..r.samples() {
-            let s = r.outputs[(i, j)];
-            let u = s / t.scale_factor[j] - t.bias_m_s2[j];
-            set(&mut r, i, j, s + t.scale_factor[j] * c * u * u * u, range);
-        }
-        r
-    };
+    let hide = |seed: u64| with_power(recording(&array, &t, seed), &array, &t, j, c, 3);
     let d = diagnose(&hide(55), &array, &[hide(56)]);
     assert_eq!(named_on(&d, "scale_factor_cubic"), [j], "{:?} {:?}", d.findings, d.not_named);
     // The quadratic, tried first, is named on the same accelerometer and nothing else of the library: the
