@@ -6,20 +6,47 @@
 /// `y` at index `i - d` (`d` in samples) by a Hann-windowed sinc over 16 neighbours each side,
 /// normalised to unit gain; the ends are held.
 pub fn fractional_delay(y: &[f64], i: usize, d: f64) -> f64 {
+    FractionalDelay::new(d).at(y, i)
+}
+
+/// The interpolator of [`fractional_delay`] for one delay, its weights computed once (a delay
+/// applied at many samples).
+pub struct FractionalDelay {
+    /// Offset of the first neighbour from `i` (`floor(-d) - 15`).
+    first: i64,
+    weights: [f64; 32],
+    d: f64,
+}
+
+impl FractionalDelay {
     const HALF: i64 = 16;
-    let at = i as f64 - d;
-    let mut num = 0.0;
-    let mut den = 0.0;
-    let base = at.floor() as i64;
-    for k in base - HALF + 1..=base + HALF {
-        let x = at - k as f64;
-        let sinc = if x.abs() < 1e-12 { 1.0 } else { (std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x) };
-        let w = 0.5 * (1.0 + (std::f64::consts::PI * x / HALF as f64).cos());
-        let idx = k.clamp(0, y.len() as i64 - 1) as usize;
-        num += sinc * w * y[idx];
-        den += sinc * w;
+
+    pub fn new(d: f64) -> Self {
+        let base = (-d).floor() as i64;
+        let mut weights = [0.0; 32];
+        for (w, k) in weights.iter_mut().zip(base - Self::HALF + 1..=base + Self::HALF) {
+            let x = -d - k as f64;
+            let sinc =
+                if x.abs() < 1e-12 { 1.0 } else { (std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x) };
+            *w = sinc * 0.5 * (1.0 + (std::f64::consts::PI * x / Self::HALF as f64).cos());
+        }
+        Self { first: base - Self::HALF + 1, weights, d }
     }
-    if den != 0.0 { num / den } else { y[i] }
+
+    /// `y` at index `i - d`.
+    pub fn at(&self, y: &[f64], i: usize) -> f64 {
+        if self.d == 0.0 {
+            return y[i];
+        }
+        let mut num = 0.0;
+        let mut den = 0.0;
+        for (m, w) in self.weights.iter().enumerate() {
+            let idx = (i as i64 + self.first + m as i64).clamp(0, y.len() as i64 - 1) as usize;
+            num += w * y[idx];
+            den += w;
+        }
+        if den != 0.0 { num / den } else { y[i] }
+    }
 }
 
 /// Taps `c_1..c_half` of the differentiator `x'(i) = sum_k c_k (x[i+k] - x[i-k]) / dt`: the

@@ -252,10 +252,11 @@ fn gyro_check(rec: &Recording, index: &[usize], fit: &Fit, bias: &Vector3<f64>) 
     if dt > 0.0 {
         for step in -steps..=steps {
             let lag = step as f64 * LAG_STEP_S;
+            let delay = crate::signal::FractionalDelay::new(lag / dt);
             let ss: f64 = used
                 .iter()
                 .map(|&(k, i)| {
-                    let reference = Vector3::from_fn(|a, _| crate::signal::fractional_delay(&columns[a], i, lag / dt));
+                    let reference = Vector3::from_fn(|a, _| delay.at(&columns[a], i));
                     (fit.motion[k].omega_rad_s - (reference - bias)).norm_squared()
                 })
                 .sum();
