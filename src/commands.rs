@@ -656,6 +656,8 @@ pub fn diagnose_recordings(
                 "bias_change_sigma_m_s2": h.bias_change_sigma_m_s2,
                 "scale_factor_change": h.scale_factor_change,
                 "scale_factor_change_sigma": h.scale_factor_change_sigma,
+                "bias_change_p_value": h.bias_change_p_value,
+                "scale_factor_change_p_value": h.scale_factor_change_p_value,
                 "after_each": h.after_each.iter().map(|(name, g)| serde_json::json!({
                     "effect": name,
                     "gap": g.static_chi2_dof,

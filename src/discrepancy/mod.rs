@@ -15,6 +15,7 @@ pub mod log;
 pub mod projected;
 pub mod recorded;
 pub mod recorded_blocks;
+pub mod recorded_change;
 pub mod recorded_effect;
 pub mod recorded_sensing;
 pub mod recorded_trial;

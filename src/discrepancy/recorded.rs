@@ -16,8 +16,8 @@
 //! the motion, and the parameters of the per-recording effects under test. An effect is named
 //! only if it lowers the static gap on *every* held-out recording and its refitted parameters
 //! differ from the fitting recording's on every one by a chi-square test at the familywise level
-//! `alpha` (Bonferroni over the held-out recordings; the sigmas carry the fitting recording's own
-//! uncertainty: see [`change_test`]).
+//! `alpha` (Bonferroni over the held-out recordings; the changes' covariance carries the fitting
+//! recording's whole uncertainty: see [`super::recorded_change`]).
 //!
 //! **Effects tried so far:** `bias_turn_on`, a bias that differs between recordings (each
 //! accelerometer's bias refitted on the held-out recording's static intervals), then, on top of
@@ -28,15 +28,17 @@
 
 use std::path::PathBuf;
 
-use statrs::distribution::{ChiSquared, ContinuousCDF};
+use nalgebra::DMatrix;
 
 use super::diagnose::Explanation;
 use super::recorded_blocks::{Nuisance, RecordingState, accumulate_recording, refitted_columns};
+use super::recorded_change::change_test;
 use super::recorded_effect::{Layout, RecordedEffect};
 use super::recorded_sensing::{SensingPoint, sensing_points};
 use super::recorded_trial::{HeldOutNormal, RankTest, try_effects};
 use crate::selfcal::calibrate::{CalibrateError, CalibrateSettings, Calibration, calibrate, prepare_dynamic};
-use crate::selfcal::predict::{HeldOut, Refit, predict_refitting, predict_with_state};
+use crate::selfcal::model::PER_ACCEL;
+use crate::selfcal::predict::{HeldOut, HeldOutState, Refit, predict_refitting, predict_with_state};
 use crate::selfcal::recording::{Recording, RecordingArray, RecordingError};
 
 /// The gap of one recording, static and dynamic phase.
@@ -62,6 +64,10 @@ pub struct HeldOutScore {
     /// (refitted with the biases).
     pub scale_factor_change: Vec<f64>,
     pub scale_factor_change_sigma: Vec<f64>,
+    /// The p-values of "no change" of the biases and of the scale factors (Wald tests on the
+    /// changes' whole covariance, [`super::recorded_change`]).
+    pub bias_change_p_value: f64,
+    pub scale_factor_change_p_value: f64,
     /// The gap after each named effect, in the order they were added.
     pub after_each: Vec<(String, Gap)>,
 }
@@ -163,40 +169,51 @@ pub fn diagnose_recordings(
         dynamic: (!fit.motion.is_empty()).then(|| own.dynamic_chi2_dof()).filter(|v| v.is_finite()),
     };
     let mut scores = Vec::with_capacity(held_out.len());
-    let mut p_values = Vec::with_capacity(held_out.len());
-    let mut scale_p_values = Vec::with_capacity(held_out.len());
     let mut scaled_gaps = Vec::with_capacity(held_out.len());
     for other in held_out {
         let before = predict_refitting(&array.array, &fit.params, other, &settings.detector, g, Refit::Pose)?;
-        let after = predict_refitting(&array.array, &fit.params, other, &settings.detector, g, Refit::PoseAndBias)?;
-        let scaled =
-            predict_refitting(&array.array, &fit.params, other, &settings.detector, g, Refit::PoseBiasAndScale)?;
+        let refitted = |refit: Refit| {
+            predict_with_state(&array.array, &fit.params, other, &settings.detector, g, refit, None, false)
+        };
+        let (after, after_state) = refitted(Refit::PoseAndBias)?;
+        let (scaled, scaled_state) = refitted(Refit::PoseBiasAndScale)?;
         let gap = |h: &HeldOut| Gap { static_chi2_dof: h.static_chi2_dof, dynamic: finite(h.dynamic_chi2_dof()) };
         let (gap_before, gap_after) = (gap(&before), gap(&after));
         scaled_gaps.push(gap(&scaled));
-        let fitted_bias = |j: usize| (fit.params.bias_m_s2[j], fit.sigma(j, 1));
-        let (change, change_sigma, p_value) =
-            change_test(after.refit_bias_m_s2.as_deref(), after.refit_bias_sigma_m_s2.as_deref(), fitted_bias, n);
-        p_values.push(p_value);
-        let fitted_k = |j: usize| (fit.params.scale_factor[j], fit.sigma(j, 0));
-        let (k_change, k_change_sigma, k_p) =
-            change_test(scaled.refit_scale_factor.as_deref(), scaled.refit_scale_factor_sigma.as_deref(), fitted_k, n);
-        scale_p_values.push(k_p);
+        let bias = refitted_columns(Nuisance::Bias, n);
+        let bias_test = change_test(
+            &static_normal(&array.array, &after_state, g, &bias),
+            &bias,
+            &bias,
+            (0..n).map(|j| after_state.params.bias_m_s2[j] - fit.params.bias_m_s2[j]).collect(),
+            &fit.covariance,
+        );
+        let both = refitted_columns(Nuisance::BiasAndScale, n);
+        let scale: Vec<usize> = (0..n).map(|j| PER_ACCEL * j).collect();
+        let scale_test = change_test(
+            &static_normal(&array.array, &scaled_state, g, &both),
+            &both,
+            &scale,
+            (0..n).map(|j| scaled_state.params.scale_factor[j] - fit.params.scale_factor[j]).collect(),
+            &fit.covariance,
+        );
         scores.push(HeldOutScore {
             recording: other.path.clone(),
             before: gap_before,
             after: gap_after,
-            bias_change_m_s2: change,
-            bias_change_sigma_m_s2: change_sigma,
-            scale_factor_change: k_change,
-            scale_factor_change_sigma: k_change_sigma,
+            bias_change_m_s2: bias_test.change,
+            bias_change_sigma_m_s2: bias_test.sigma,
+            scale_factor_change: scale_test.change,
+            scale_factor_change_sigma: scale_test.sigma,
+            bias_change_p_value: bias_test.p_value,
+            scale_factor_change_p_value: scale_test.p_value,
             after_each: Vec::new(),
         });
     }
     let mut findings = Vec::new();
     let mut not_named = Vec::new();
     let level = alpha / held_out.len().max(1) as f64;
-    let largest = p_values.iter().copied().fold(0.0f64, f64::max);
+    let largest = scores.iter().map(|s| s.bias_change_p_value).fold(0.0f64, f64::max);
     let lowers_every_gap = scores.iter().all(|s| s.after.static_chi2_dof < s.before.static_chi2_dof);
     if held_out.is_empty() {
         not_named.push(("bias_turn_on".into(), "needs held-out recordings (--held-out)".into()));
@@ -231,7 +248,7 @@ pub fn diagnose_recordings(
             s.after_each.push(("bias_turn_on".into(), s.after));
         }
         // Then the scale factor per recording, on top of the bias (nested: tried only after it).
-        let largest = scale_p_values.iter().copied().fold(0.0f64, f64::max);
+        let largest = scores.iter().map(|s| s.scale_factor_change_p_value).fold(0.0f64, f64::max);
         let lowers = scores.iter().zip(&scaled_gaps).all(|(s, g)| g.static_chi2_dof < s.after.static_chi2_dof);
         if lowers && largest < level {
             findings.push(RecordedFinding {
@@ -354,24 +371,23 @@ fn middle(t_s: &[f64]) -> f64 {
     }
 }
 
-/// A per-recording parameter refitted on a held-out recording against the fitting recording's:
-/// the change of each accelerometer's parameter (`refit` minus the fitting value), its sigma
-/// (this recording's and the fitting recording's, combined), and the p-value of "no change":
-/// sum of (change / sigma)^2 against chi-square with `n` dof. (The fitting recording's error is
-/// in both the baseline's residuals and the refit, so a fall of the held-out chi-square alone
-/// would name the effect on identical recordings.) A missing refit gives NaN and p = 1.
-pub fn change_test(
-    refit: Option<&[f64]>,
-    refit_sigma: Option<&[f64]>,
-    fitted: impl Fn(usize) -> (f64, f64),
-    n: usize,
-) -> (Vec<f64>, Vec<f64>, f64) {
-    let at = |v: Option<&[f64]>, j: usize| v.and_then(|v| v.get(j)).copied().unwrap_or(f64::NAN);
-    let change: Vec<f64> = (0..n).map(|j| at(refit, j) - fitted(j).0).collect();
-    let sigma: Vec<f64> = (0..n).map(|j| at(refit_sigma, j).hypot(fitted(j).1)).collect();
-    let wald: f64 = change.iter().zip(&sigma).map(|(c, s)| (c / s).powi(2)).sum();
-    let p = ChiSquared::new(n as f64).map(|d| d.sf(wald)).unwrap_or(f64::NAN);
-    (change, sigma, if p.is_finite() { p } else { 1.0 })
+/// The static normal matrix of a held-out recording at its refitted state, in the baseline's
+/// layout with the pose angles eliminated (what the turn-on test needs).
+fn static_normal(array: &crate::array::Array, state: &HeldOutState, g: f64, refit: &[usize]) -> DMatrix<f64> {
+    let state = RecordingState {
+        array,
+        params: &state.params,
+        stat: &state.stat,
+        static_t_s: &state.static_t_s,
+        up: &state.up,
+        static_variance_factor: 1.0,
+        dynamic: None,
+        motion: &[],
+        dynamic_w: &[],
+        gravity_m_s2: g,
+        t_mid_s: state.t_mid_s,
+    };
+    accumulate_recording(&state, Nuisance::Baseline, Some(refit.to_vec()), &[]).statics.normal
 }
 
 fn finite(v: f64) -> Option<f64> {
