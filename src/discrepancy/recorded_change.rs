@@ -48,7 +48,8 @@ pub fn change_test(
     change: Vec<f64>,
     fitted_covariance: &DMatrix<f64>,
 ) -> ChangeTest {
-    let undecided = |change: Vec<f64>| ChangeTest { sigma: vec![f64::NAN; change.len()], change, wald: f64::NAN, p_value: 1.0 };
+    let undecided =
+        |change: Vec<f64>| ChangeTest { sigma: vec![f64::NAN; change.len()], change, wald: f64::NAN, p_value: 1.0 };
     let p = normal.nrows();
     let usable = p <= fitted_covariance.nrows()
         && p == normal.ncols()
@@ -89,10 +90,8 @@ pub fn change_test(
     let sigma: Vec<f64> = (0..t).map(|i| covariance[(i, i)].sqrt()).collect();
     let d = nalgebra::DVector::from_vec(change.clone());
     let wald = covariance.clone().cholesky().map(|c| d.dot(&c.solve(&d)));
-    let p_value = wald
-        .filter(|w| w.is_finite())
-        .and_then(|w| ChiSquared::new(t as f64).ok().map(|chi| chi.sf(w)))
-        .unwrap_or(1.0);
+    let p_value =
+        wald.filter(|w| w.is_finite()).and_then(|w| ChiSquared::new(t as f64).ok().map(|chi| chi.sf(w))).unwrap_or(1.0);
     ChangeTest { change, sigma, wald: wald.unwrap_or(f64::NAN), p_value }
 }
 
