@@ -712,22 +712,58 @@ pub fn inject(
     path: &Path,
     array_path: &Path,
     effect: &str,
-    accelerometer: usize,
+    accelerometer: Option<usize>,
+    element: Option<&str>,
     value: f64,
     out: &Path,
 ) -> anyhow::Result<()> {
+    use gfcal::discrepancy::inject::GYRO_EFFECT;
+    let gyro = effect == GYRO_EFFECT;
+    enum Target<'a> {
+        Accelerometer(usize),
+        Gyroscopes(&'a str),
+    }
+    let target = match (gyro, accelerometer, element) {
+        (true, Some(_), _) => {
+            return Err(InputError::Other(format!(
+                "--accelerometer: {GYRO_EFFECT} is on the gyroscopes; give --element instead"
+            ))
+            .into());
+        }
+        (true, None, None) => {
+            return Err(InputError::Other(format!(
+                "--element: {GYRO_EFFECT} needs the element of G (xx, xy, ..., zz)"
+            ))
+            .into());
+        }
+        (false, _, Some(_)) => {
+            return Err(InputError::Other(format!("--element: only for {GYRO_EFFECT}, not for {effect}")).into());
+        }
+        (false, None, _) => {
+            return Err(
+                InputError::Other(format!("--accelerometer: {effect} needs the accelerometer (1-based)")).into()
+            );
+        }
+        (true, None, Some(e)) => Target::Gyroscopes(e),
+        (false, Some(j), None) => Target::Accelerometer(j),
+    };
     let array = gfcal::config::array::load_recording_array(array_path).map_err(InputError::Config)?;
     let mut table = gfcal::io::table::Table::read(path).map_err(|e| InputError::Other(e.to_string()))?;
     // The recording is checked as `calibrate` checks it (columns, values, time) before anything is added.
     gfcal::selfcal::recording::Recording::from_table(&table, &array).map_err(|e| InputError::Other(e.to_string()))?;
-    gfcal::discrepancy::inject::inject(&mut table, &array, effect, accelerometer, value)
-        .map_err(|e| InputError::Other(e.to_string()))?;
+    let what = match target {
+        Target::Accelerometer(j) => {
+            gfcal::discrepancy::inject::inject(&mut table, &array, effect, j, value)
+                .map_err(|e| InputError::Other(e.to_string()))?;
+            format!("accelerometer {j} (column {})", array.accelerometer_columns[j - 1])
+        }
+        Target::Gyroscopes(element) => {
+            gfcal::discrepancy::inject::inject_gyro(&mut table, &array, element, value)
+                .map_err(|e| InputError::Other(e.to_string()))?;
+            format!("the gyroscopes (element {element} of G)")
+        }
+    };
     table.write(out).map_err(|e| anyhow::anyhow!("{e}"))?;
-    eprintln!(
-        "wrote {}: {} with {effect} = {value} on accelerometer {accelerometer} (column {})",
-        out.display(),
-        path.display(),
-        array.accelerometer_columns[accelerometer - 1]
-    );
+    eprintln!("wrote {}: {} with {effect} = {value} on {what}", out.display(), path.display());
     Ok(())
 }

@@ -124,12 +124,16 @@ enum Command {
         #[arg(long)]
         array: PathBuf,
         /// bias_turn_on (m/s^2), bias_time_drift (m/s^2/s), scale_factor_quadratic (1/(m/s^2)),
-        /// scale_factor_cubic (1/(m/s^2)^2) or sampling_delay (s).
+        /// scale_factor_cubic (1/(m/s^2)^2), cross_coupling (1/(m/s^2)) or sampling_delay (s) on
+        /// an accelerometer; gyro_scale_misalignment (1) on the gyroscopes, with --element.
         #[arg(long)]
         effect: String,
-        /// The accelerometer (1-based, in the array file's order).
+        /// The accelerometer (1-based, in the array file's order); not with gyro_scale_misalignment.
         #[arg(long)]
-        accelerometer: usize,
+        accelerometer: Option<usize>,
+        /// gyro_scale_misalignment's element of G: xx, xy, ..., zz (row: the true rate's axis).
+        #[arg(long)]
+        element: Option<String>,
         /// The effect's size, in the unit above.
         #[arg(long, allow_hyphen_values = true)]
         value: f64,
@@ -306,8 +310,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
         }
         Command::Design { config } => commands::design(&config),
-        Command::Inject { recording, array, effect, accelerometer, value, out } => {
-            commands::inject(&recording, &array, &effect, accelerometer, value, &out)
+        Command::Inject { recording, array, effect, accelerometer, element, value, out } => {
+            commands::inject(&recording, &array, &effect, accelerometer, element.as_deref(), value, &out)
         }
         Command::Calibrate {
             recording,

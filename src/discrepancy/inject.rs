@@ -15,16 +15,22 @@
 //! | `scale_factor_quadratic` | `s + V s^2` | 1/(m/s^2) |
 //! | `scale_factor_cubic` | `s + V s^3` | 1/(m/s^2)^2 |
 //! | `cross_coupling` | `s + V s (+-s_K)`, `K` the axis of the same package along the first tilt direction `e1` of `s`'s nominal axis (`sensor::misalignment::tilt_basis`), signed so that `+-s_K` reads `e1 . q` | 1/(m/s^2) |
+//! | `gyro_scale_misalignment` (with `--element`, no accelerometer) | each gyroscope column `y_g + a_g . ((I + G)^-1 - I) w`, `w` the reference rate, `G` zero but element `--element` = V: the true rate is `(I + G)` times the reference | 1 |
 //! | `sampling_delay` | `s(t - V)`: a fractional delay by a windowed-sinc interpolator over 2 x 16 neighbours (band-limited to the sample rate's Nyquist; uniform sampling at the recording's mean interval assumed) | s |
 //!
 //! The delay's interpolator is band-limited rather than linear: at 62.5 Hz a hand-held rotation
 //! turns the board by about 0.4 rad between samples, and linear interpolation delays such a
 //! signal by only about two thirds of `V` (measured on recording 2: 0.28 ms for 0.4 ms).
 
+use nalgebra::{Matrix3, Vector3};
+
 use crate::io::table::Table;
 use crate::selfcal::recording::RecordingArray;
 
-/// The effects `gfcal inject` can add.
+/// The effect `gfcal inject` adds to the gyroscopes' columns (with `--element`).
+pub const GYRO_EFFECT: &str = "gyro_scale_misalignment";
+
+/// The effects `gfcal inject` can add to one accelerometer's column.
 pub const INJECTABLE: [&str; 6] = [
     "bias_turn_on",
     "bias_time_drift",
@@ -38,7 +44,7 @@ pub const INJECTABLE: [&str; 6] = [
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum InjectError {
-    #[error("--effect: unknown effect `{0}` (known: {known})", known = INJECTABLE.join(", "))]
+    #[error("--effect: unknown effect `{0}` (known: {known}, {GYRO_EFFECT})", known = INJECTABLE.join(", "))]
     UnknownEffect(String),
     #[error("--accelerometer: {given} is not an accelerometer of {array} (1 to {n})")]
     Accelerometer { given: usize, array: String, n: usize },
@@ -52,6 +58,12 @@ pub enum InjectError {
         "--effect cross_coupling: accelerometer {j} of {array} has no axis in its package (same position) along its first cross direction, which reads the force it couples to"
     )]
     NoPartner { j: usize, array: String },
+    #[error("--element: unknown element `{0}` of the gyroscopes' matrix (known: {known})", known = GYRO_ELEMENTS.join(", "))]
+    Element(String),
+    #[error("--effect gyro_scale_misalignment: the array file {array} lists no gyroscopes spanning three axes")]
+    NoGyroscopes { array: String },
+    #[error("{}: has no column `{column}` (a gyroscope of the array file {array})", path.display())]
+    MissingGyroColumn { path: std::path::PathBuf, column: String, array: String },
 }
 
 /// Adds `effect` of size `value` to accelerometer `accelerometer` (1-based) of `table`.
@@ -125,30 +137,99 @@ pub fn inject(
     Ok(())
 }
 
-/// `y` at `at` by linear interpolation over increasing `t` (held at the ends).
-#[cfg(test)]
-fn interpolate(t: &[f64], y: &[f64], at: f64) -> f64 {
-    match t.partition_point(|&ti| ti <= at) {
-        0 => y[0],
-        i if i >= t.len() => y[t.len() - 1],
-        i => {
-            let w = (at - t[i - 1]) / (t[i] - t[i - 1]);
-            y[i - 1] + w * (y[i] - y[i - 1])
+/// The elements of the gyroscopes' scale and misalignment matrix `G`: row (the array axis the
+/// true rate is read along) then column.
+pub const GYRO_ELEMENTS: [&str; 9] = ["xx", "xy", "xz", "yx", "yy", "yz", "zx", "zy", "zz"];
+
+/// Adds the gyroscopes' own scale factor and misalignment to `table`: element `element` of `G` is
+/// `value` (1), the others 0, and the reference rate (the least-squares rate of the array file's
+/// gyroscope axes, as a recording reads it) becomes `(I + G)^-1 w`, so that the true rate is
+/// `(I + G)` times the reference, as `gyro_scale_misalignment` models it. Each gyroscope column
+/// `y_g` gains `a_g . ((I + G)^-1 - I) w`, which moves the least-squares rate by exactly that and
+/// leaves each axis's own noise in place; an output pushed past its range is clipped at the rail.
+pub fn inject_gyro(table: &mut Table, array: &RecordingArray, element: &str, value: f64) -> Result<(), InjectError> {
+    let position =
+        GYRO_ELEMENTS.iter().position(|e| *e == element).ok_or_else(|| InjectError::Element(element.into()))?;
+    if !value.is_finite() {
+        return Err(InjectError::Value(value));
+    }
+    let gyros = &array.gyroscopes;
+    let normal: Matrix3<f64> = gyros.iter().map(|g| g.axis * g.axis.transpose()).sum();
+    let inverse = normal.try_inverse().filter(|_| !gyros.is_empty());
+    let inverse = inverse.ok_or_else(|| InjectError::NoGyroscopes { array: array.path.display().to_string() })?;
+    let mut g = Matrix3::zeros();
+    g[(position / 3, position % 3)] = value;
+    let change = (Matrix3::identity() + g).try_inverse().ok_or(InjectError::Value(value))? - Matrix3::identity();
+    let mut columns = Vec::with_capacity(gyros.len());
+    for gyro in gyros {
+        let k = table.index(&gyro.column).ok_or_else(|| InjectError::MissingGyroColumn {
+            path: table.path.clone(),
+            column: gyro.column.clone(),
+            array: array.path.display().to_string(),
+        })?;
+        columns.push(k);
+    }
+    let rows = table.data.first().map_or(0, Vec::len);
+    for i in 0..rows {
+        let b: Vector3<f64> = gyros.iter().zip(&columns).map(|(gyro, &k)| gyro.axis * table.data[k][i]).sum();
+        let add = change * (inverse * b);
+        for (gyro, &k) in gyros.iter().zip(&columns) {
+            let v = table.data[k][i] + gyro.axis.dot(&add);
+            table.data[k][i] = if v.abs() > gyro.range_rad_s { gyro.range_rad_s.copysign(v) } else { v };
         }
     }
+    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
-    use super::interpolate;
+    use super::*;
+    use crate::array::Array;
+    use crate::selfcal::recording::ReferenceGyro;
 
+    /// Four gyroscope axes (three orthogonal and a skew one) with noisy columns; after injecting
+    /// `G_xy = 0.01` the least-squares rate, computed here from the columns, is `(I + G)^-1` times
+    /// the one before, and each axis's own residual (its noise) is where it was.
     #[test]
-    fn interpolation_is_linear_and_held_at_the_ends() {
-        let t = [0.0, 1.0, 2.0];
-        let y = [0.0, 10.0, 30.0];
-        assert_eq!(interpolate(&t, &y, 0.25), 2.5);
-        assert_eq!(interpolate(&t, &y, 1.5), 20.0);
-        assert_eq!(interpolate(&t, &y, -1.0), 0.0);
-        assert_eq!(interpolate(&t, &y, 5.0), 30.0);
+    fn the_gyroscopes_read_through_the_inverse_of_i_plus_g_with_their_noise_kept() {
+        let axes = [Vector3::x(), Vector3::y(), Vector3::z(), Vector3::new(1.0, 1.0, 1.0).normalize()];
+        let mut array = RecordingArray::plain(Array::cube(0.1).unwrap(), std::path::Path::new("a.toml"));
+        array.gyroscopes = axes
+            .iter()
+            .enumerate()
+            .map(|(i, a)| ReferenceGyro { axis: *a, column: format!("g{i}"), range_rad_s: f64::INFINITY })
+            .collect();
+        let rows = 50;
+        let rate =
+            |i: usize| Vector3::new((i as f64 * 0.3).sin() * 5.0, (i as f64 * 0.17).cos() * 3.0, 2.0 - i as f64 * 0.1);
+        let noise = |i: usize, g: usize| 1e-3 * ((i * 7 + g * 13) as f64).sin();
+        let mut table = Table {
+            path: "r.csv".into(),
+            names: (0..4).map(|g| format!("g{g}")).collect(),
+            data: (0..4).map(|g| (0..rows).map(|i| axes[g].dot(&rate(i)) + noise(i, g)).collect()).collect(),
+            first_null_row: vec![None; 4],
+        };
+        let least_squares = |t: &Table, i: usize| {
+            let n: Matrix3<f64> = axes.iter().map(|a| a * a.transpose()).sum();
+            let b: Vector3<f64> = axes.iter().enumerate().map(|(g, a)| a * t.data[g][i]).sum();
+            n.try_inverse().unwrap() * b
+        };
+        let before: Vec<Vector3<f64>> = (0..rows).map(|i| least_squares(&table, i)).collect();
+        let original = table.data.clone();
+        inject_gyro(&mut table, &array, "xy", 0.01).unwrap();
+        let mut g = Matrix3::identity();
+        g[(0, 1)] = 0.01;
+        let read = g.try_inverse().unwrap();
+        for i in 0..rows {
+            let after = least_squares(&table, i);
+            assert!((after - read * before[i]).norm() < 1e-12, "row {i}");
+            for (k, a) in axes.iter().enumerate() {
+                let residual = |t: &Vec<Vec<f64>>, w: &Vector3<f64>| t[k][i] - a.dot(w);
+                assert!((residual(&table.data, &after) - residual(&original, &before[i])).abs() < 1e-12);
+            }
+        }
+        assert!(matches!(inject_gyro(&mut table, &array, "xw", 0.01), Err(InjectError::Element(_))));
+        array.gyroscopes.clear();
+        assert!(matches!(inject_gyro(&mut table, &array, "xy", 0.01), Err(InjectError::NoGyroscopes { .. })));
     }
 }

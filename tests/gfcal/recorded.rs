@@ -222,11 +222,25 @@ fn inject_refuses_unknown_effects_and_accelerometers() {
             out.to_str().unwrap(),
         ])
     };
+    let first = real(1);
+    let without = |effect: &str, extra: &[&str]| {
+        let mut args = vec!["inject", first.to_str().unwrap(), "--array", ARRAY, "--effect", effect, "--value", "1e-3"];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+        gfcal(&args)
+    };
+    let gyro = |extra: &[&str]| without("gyro_scale_misalignment", extra);
+    let accel = |extra: &[&str]| without("bias_turn_on", extra);
     for (o, says) in [
         (run("warp_drive", "1", "1"), "unknown effect `warp_drive` (known: bias_turn_on"),
         (run("bias_turn_on", "25", "1"), "25 is not an accelerometer"),
         (run("bias_turn_on", "0", "1"), "0 is not an accelerometer"),
         (run("bias_turn_on", "1", "nan"), "--value: must be a finite number"),
+        (run("gyro_scale_misalignment", "1", "1e-3"), "--accelerometer: gyro_scale_misalignment is on the gyroscopes"),
+        (gyro(&["--element", "xw"]), "--element: unknown element `xw`"),
+        (gyro(&[]), "--element: gyro_scale_misalignment needs the element"),
+        (accel(&["--element", "xy"]), "--element: only for gyro_scale_misalignment"),
+        (accel(&[]), "--accelerometer: bias_turn_on needs the accelerometer"),
     ] {
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(2), "{err}");
@@ -424,4 +438,81 @@ fn diagnose_writes_a_report_for_recordings() {
         assert!(page.contains(says), "{says} missing");
     }
     assert!(page.matches("<circle").count() > 50, "the residual figure has its points");
+}
+
+/// Item 5 for `--use-gyro`: the gyroscopes' own scale and misalignment, `G_xy = G_zz = 1.5e-2`, added by
+/// `gfcal inject --effect gyro_scale_misalignment` to the gyroscope columns of real recordings 2 and 3 (the
+/// expectation was written before the first run: `results/mimu4444/discrepancy/EXPECTATIONS.md`, last
+/// section). The effect is named, and the change of its seen part (symmetric, traceless: the antisymmetric part is
+/// a rotation of the accelerometers and the trace a size, 4 of 9 unseen) from the clean pair equals the injected
+/// one's within one sigma of each element, the sigma of that combination from the effect's covariance.
+///
+/// **It fails** (first run, 2026-11-24). Named: yes. Recovered: no. The seen part's xx element changes by
+/// -2.42e-2 against the injected -5.0e-3 +- 4.1e-3, yy by +8.3e-3 against -5.0e-3 +- 4.0e-3; zz, xy, xz and yz are
+/// within 1.6 sigma. The injection wrecks the `--use-gyro` baseline fit: static chi2/dof 3.0 -> 185 (the static
+/// variance factor's runaway, as with a 2 ms delay). Tried once more at 5e-3, for information only: chi2/dof 3.0 ->
+/// 8.1, xx off by 1.25 sigma, the others within 1. The xx and yy misses scale with the size (-1.9e-2 and -4.9e-3),
+/// so this is not only the baseline's nonlinearity. Not understood; see the README's "Not done".
+#[test]
+#[ignore = "fails: the injected G's xx/yy seen part is not recovered on real recordings (see the doc comment)"]
+fn gyroscope_scale_and_misalignment_injected_into_real_recordings_are_named_and_recovered() {
+    use nalgebra::{DVector, Matrix3};
+    let dir = tempfile::tempdir().unwrap();
+    let value = 1.5e-2;
+    let mut injected = Vec::new();
+    for k in [2, 3] {
+        let mut from = real(k);
+        for element in ["xy", "zz"] {
+            let to = dir.path().join(format!("r{k}_{element}.parquet"));
+            let v = value.to_string();
+            let o = gfcal(&[
+                "inject",
+                from.to_str().unwrap(),
+                "--array",
+                ARRAY,
+                "--effect",
+                "gyro_scale_misalignment",
+                "--element",
+                element,
+                "--value",
+                &v,
+                "--out",
+                to.to_str().unwrap(),
+            ]);
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            from = to;
+        }
+        injected.push(from);
+    }
+    let array = mimu_array();
+    let read = |p: &std::path::Path| Recording::read(p, &array).unwrap();
+    let settings = CalibrateSettings { use_gyro: true, ..CalibrateSettings::default() };
+    let run = |a: &std::path::Path, b: &std::path::Path| {
+        diagnose_recordings(&read(a), &array, &[read(b)], &settings, 0.01).expect("diagnosed")
+    };
+    let clean = run(&real(2), &real(3));
+    let with = run(&injected[0], &injected[1]);
+    assert!(with.findings.iter().any(|f| f.name == "gyro_scale_misalignment"), "{:?}", with.not_named);
+    let (w, c) = (tried(&with, "gyro_scale_misalignment"), tried(&clean, "gyro_scale_misalignment"));
+    assert_eq!(w.unseen, 4);
+    let mut g = Matrix3::zeros();
+    g[(0, 1)] = value;
+    g[(2, 2)] = value;
+    // The symmetric traceless part of a 3 x 3 matrix, element (a, b), as a row on its 9 elements (row-major).
+    let seen = |a: usize, b: usize| {
+        DVector::from_fn(9, |i, _| {
+            let (r, s) = (i / 3, i % 3);
+            let sym = 0.5 * (f64::from(r == a && s == b) + f64::from(r == b && s == a));
+            sym - if a == b && r == s { 1.0 / 3.0 } else { 0.0 }
+        })
+    };
+    let extra = DVector::from_column_slice(&w.value) - DVector::from_column_slice(&c.value);
+    let cov = &w.covariance;
+    let truth = DVector::from_column_slice(g.transpose().as_slice());
+    for (a, b) in [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)] {
+        let l = seen(a, b);
+        let (got, want) = (l.dot(&extra), l.dot(&truth));
+        let sigma = (l.transpose() * cov * &l)[(0, 0)].sqrt();
+        assert!((got - want).abs() < sigma, "seen part ({a}, {b}): {got} against {want} +- {sigma}");
+    }
 }
