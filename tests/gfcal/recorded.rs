@@ -312,7 +312,8 @@ pub fn named_on(d: &RecordedDiagnosis, name: &str) -> Vec<usize> {
     d.findings.iter().filter(|f| f.name == name).filter_map(|f| f.accelerometer).collect()
 }
 
-fn inject_into(from: &std::path::Path, to: &std::path::Path, effect: &str, accelerometer: &str, value: &str) {
+/// `gfcal inject` from `from` to `to`; `target` is `["--accelerometer", J]` or `["--element", AB]`.
+fn inject_into(from: &std::path::Path, to: &std::path::Path, effect: &str, target: [&str; 2], value: &str) {
     let o = gfcal(&[
         "inject",
         from.to_str().unwrap(),
@@ -320,8 +321,8 @@ fn inject_into(from: &std::path::Path, to: &std::path::Path, effect: &str, accel
         ARRAY,
         "--effect",
         effect,
-        "--accelerometer",
-        accelerometer,
+        target[0],
+        target[1],
         "--value",
         value,
         "--out",
@@ -357,7 +358,7 @@ fn effects_injected_into_real_recordings_are_named_on_their_accelerometer_and_re
         .enumerate()
         {
             let to = dir.path().join(format!("r{k}_{step}.parquet"));
-            inject_into(&from, &to, effect, j, v);
+            inject_into(&from, &to, effect, ["--accelerometer", j], v);
             from = to;
         }
         injected.push(from);
@@ -464,22 +465,7 @@ fn gyroscope_scale_and_misalignment_injected_into_real_recordings_are_named_and_
         let mut from = real(k);
         for element in ["xy", "zz"] {
             let to = dir.path().join(format!("r{k}_{element}.parquet"));
-            let v = value.to_string();
-            let o = gfcal(&[
-                "inject",
-                from.to_str().unwrap(),
-                "--array",
-                ARRAY,
-                "--effect",
-                "gyro_scale_misalignment",
-                "--element",
-                element,
-                "--value",
-                &v,
-                "--out",
-                to.to_str().unwrap(),
-            ]);
-            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            inject_into(&from, &to, "gyro_scale_misalignment", ["--element", element], &value.to_string());
             from = to;
         }
         injected.push(from);
