@@ -321,19 +321,7 @@ pub fn diagnose_recordings(
             Some(&dynamic_w),
             settings.use_gyro,
         )?;
-        let state = RecordingState {
-            array: &array.array,
-            params: &st.params,
-            stat: &st.stat,
-            static_t_s: &st.static_t_s,
-            up: &st.up,
-            static_variance_factor: 1.0,
-            dynamic: st.dynamic.as_ref(),
-            motion: &st.motion,
-            dynamic_w: &dynamic_w,
-            gravity_m_s2: g,
-            t_mid_s: st.t_mid_s,
-        };
+        let state = held_state(&array.array, &st, g, &dynamic_w);
         // The baseline's layout, so that the fitting recording's change of every parameter with an
         // effect is carried over; only the turn-on parameters named are refitted here.
         let refit_b = refitted_columns(nuisance_b, array.array.len());
@@ -371,23 +359,34 @@ fn middle(t_s: &[f64]) -> f64 {
     }
 }
 
-/// The static normal matrix of a held-out recording at its refitted state, in the baseline's
-/// layout with the pose angles eliminated (what the turn-on test needs).
-fn static_normal(array: &crate::array::Array, state: &HeldOutState, g: f64, refit: &[usize]) -> DMatrix<f64> {
-    let state = RecordingState {
+/// A held-out recording's state for `accumulate_recording` (its static means carry no variance
+/// factor: their noise is measured on the recording itself).
+fn held_state<'a>(
+    array: &'a crate::array::Array,
+    state: &'a HeldOutState,
+    g: f64,
+    dynamic_w: &'a [f64],
+) -> RecordingState<'a> {
+    RecordingState {
         array,
         params: &state.params,
         stat: &state.stat,
         static_t_s: &state.static_t_s,
         up: &state.up,
         static_variance_factor: 1.0,
-        dynamic: None,
-        motion: &[],
-        dynamic_w: &[],
+        dynamic: state.dynamic.as_ref(),
+        motion: &state.motion,
+        dynamic_w,
         gravity_m_s2: g,
         t_mid_s: state.t_mid_s,
-    };
-    accumulate_recording(&state, Nuisance::Baseline, Some(refit.to_vec()), &[]).statics.normal
+    }
+}
+
+/// The static normal matrix of a held-out recording at its refitted state, in the baseline's
+/// layout with the pose angles eliminated (what the turn-on test needs).
+fn static_normal(array: &crate::array::Array, state: &HeldOutState, g: f64, refit: &[usize]) -> DMatrix<f64> {
+    let statics = RecordingState { dynamic: None, motion: &[], ..held_state(array, state, g, &[]) };
+    accumulate_recording(&statics, Nuisance::Baseline, Some(refit.to_vec()), &[]).statics.normal
 }
 
 fn finite(v: f64) -> Option<f64> {

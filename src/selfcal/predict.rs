@@ -28,14 +28,6 @@ pub struct HeldOut {
     /// RMS of the dynamic residuals, m/s^2, against the per-sample static noise RMS.
     pub dynamic_residual_rms_m_s2: f64,
     pub dynamic_noise_rms_m_s2: f64,
-    /// With [`Refit::PoseAndBias`]: the recording's own input-referred bias of every
-    /// accelerometer (m/s^2) and its sigma (from the static samples' noise; the coupling with the
-    /// pose directions is left out, which the 20 poses of a real protocol make small).
-    pub refit_bias_m_s2: Option<Vec<f64>>,
-    pub refit_bias_sigma_m_s2: Option<Vec<f64>>,
-    /// With [`Refit::PoseBiasAndScale`]: the recording's own scale factors and their sigmas.
-    pub refit_scale_factor: Option<Vec<f64>>,
-    pub refit_scale_factor_sigma: Option<Vec<f64>>,
 }
 
 impl HeldOut {
@@ -118,13 +110,10 @@ pub fn predict_with_state(
     let mut params = params.clone();
     let poses = stat.means.nrows();
     let total: f64 = stat.counts.iter().map(|&c| c as f64).sum();
-    let (mut refit_bias_m_s2, mut refit_bias_sigma_m_s2) = (None, None);
-    let (mut refit_scale_factor, mut refit_scale_factor_sigma) = (None, None);
     if refit != Refit::Pose && poses > 0 {
         // Alternately the poses given the sensors and the sensors given the poses: each
         // accelerometer's bias (and with `PoseBiasAndScale` its scale factor) by count-weighted
         // least squares of its interval means on its input `a . u g`.
-        let mut spread = vec![0.0; n];
         for _ in 0..500 {
             let sens = sensors(array, &params);
             let ups: Vec<Vector3<f64>> = (0..poses).map(|p| solve_pose(&sens, &stat, p, gravity_m_s2)).collect();
@@ -145,18 +134,10 @@ pub fn predict_with_state(
                 largest = largest.max((b - params.bias_m_s2[j]).abs()).max((k - params.scale_factor[j]).abs());
                 params.bias_m_s2[j] = b;
                 params.scale_factor[j] = k;
-                spread[j] = sxx;
             }
             if largest < 1e-13 {
                 break;
             }
-        }
-        refit_bias_sigma_m_s2 =
-            Some((0..n).map(|j| stat.sigma[j] / (params.scale_factor[j].abs() * total.sqrt())).collect());
-        refit_bias_m_s2 = Some(params.bias_m_s2.clone());
-        if refit == Refit::PoseBiasAndScale {
-            refit_scale_factor_sigma = Some((0..n).map(|j| stat.sigma[j] / spread[j].sqrt()).collect());
-            refit_scale_factor = Some(params.scale_factor.clone());
         }
     }
     let sens = sensors(array, &params);
@@ -174,9 +155,14 @@ pub fn predict_with_state(
         }
     }
     let count = (poses * n) as f64;
-    let fitted = 2.0 * poses as f64
-        + if refit_bias_m_s2.is_some() { n as f64 } else { 0.0 }
-        + if refit_scale_factor.is_some() { n as f64 } else { 0.0 };
+    // The refitted parameters (their values are the state's `params`).
+    let refitted = match refit {
+        _ if poses == 0 => 0,
+        Refit::Pose => 0,
+        Refit::PoseAndBias => n,
+        Refit::PoseBiasAndScale => 2 * n,
+    };
+    let fitted = 2.0 * poses as f64 + refitted as f64;
     let prepared = if use_gyro {
         prepare_dynamic(rec, &seg, true, super::calibrate::gyro_bias(rec, &seg))
     } else {
@@ -205,10 +191,6 @@ pub fn predict_with_state(
         dynamic_samples: dyn_samples,
         dynamic_residual_rms_m_s2: dyn_rms,
         dynamic_noise_rms_m_s2: dyn_noise,
-        refit_bias_m_s2,
-        refit_bias_sigma_m_s2,
-        refit_scale_factor,
-        refit_scale_factor_sigma,
     };
     let state = HeldOutState { params, stat, static_t_s, up, dynamic: prepared.data, motion, t_mid_s };
     Ok((held, state))
