@@ -110,10 +110,10 @@ mod pieces {
         let gravity = Vector3::new(0.0, 0.0, -9.80665);
         let nav = &cell.navigation;
         bencher.bench_local(|| {
-            let mut comp = Compensator::new(&cell.array, &nominal).expect("nominal cube");
+            let comp = Compensator::new(&cell.array, &nominal).expect("nominal cube");
             let mut source =
                 SimulatedArray::<rand_chacha::ChaCha8Rng>::new(&cell.array, &truth, &nav.trajectory, gravity);
-            navigate(&nav.trajectory, &mut source, &mut comp, &gravity, nav.step_s, &nav.horizons_s)
+            navigate(&nav.trajectory, &mut source, &comp, &gravity, nav.step_s, &nav.horizons_s)
         });
     }
 }

@@ -58,24 +58,66 @@ impl FoldedSolve {
     /// `(alpha, a_o)` in body axes from raw outputs, the body rate and gravity in body axes.
     #[inline]
     pub fn solve(&self, outputs: &[f64], omega_b_rad_s: &Vector3<f64>, gravity_b_m_s2: &Vector3<f64>) -> RigidAccel {
+        self.solve_from(self.output_terms(outputs), omega_b_rad_s, gravity_b_m_s2)
+    }
+
+    /// The part of the solve that depends on the outputs only: the constant plus the outputs'
+    /// columns. The navigation computes it once per distinct time, off the state's chain of
+    /// dependencies; [`FoldedSolve::solve_from`] adds the state's terms in the same order as
+    /// [`FoldedSolve::solve`], so the two give the same bits.
+    #[inline]
+    pub fn output_terms(&self, outputs: &[f64]) -> [f64; 6] {
+        let mut x = self.columns[self.n + 9];
+        for (column, s) in self.columns[..self.n].iter().zip(outputs) {
+            add(&mut x, column, *s);
+        }
+        x
+    }
+
+    /// The constant column (the biases' share).
+    pub fn constant_column(&self) -> &[f64; 6] {
+        &self.columns[self.n + 9]
+    }
+
+    /// The outputs' columns, one per accelerometer (`P_kj / k_j`).
+    pub fn output_columns(&self) -> &[[f64; 6]] {
+        &self.columns[..self.n]
+    }
+
+    /// The columns that multiply the state's terms: gravity in body axes (3), then the rate's
+    /// monomials `(wx^2, wy^2, wz^2, wx wy, wx wz, wy wz)`; each a column of the 6 unknowns
+    /// `(alpha, a_o)`.
+    pub fn state_columns(&self) -> &[[f64; 6]] {
+        &self.columns[self.n..self.n + 9]
+    }
+
+    /// `(alpha, a_o)` from the outputs' terms ([`FoldedSolve::output_terms`]), the body rate and
+    /// gravity in body axes.
+    #[inline]
+    pub fn solve_from(
+        &self,
+        output_terms: [f64; 6],
+        omega_b_rad_s: &Vector3<f64>,
+        gravity_b_m_s2: &Vector3<f64>,
+    ) -> RigidAccel {
         let w = omega_b_rad_s;
         let monomials = [w.x * w.x, w.y * w.y, w.z * w.z, w.x * w.y, w.x * w.z, w.y * w.z];
-        let mut x = self.columns[self.n + 9];
-        let mut add = |column: &[f64; 6], v: f64| {
-            for k in 0..6 {
-                x[k] += column[k] * v;
-            }
-        };
-        for (column, s) in self.columns[..self.n].iter().zip(outputs) {
-            add(column, *s);
-        }
+        let mut x = output_terms;
         for (column, g) in self.columns[self.n..self.n + 3].iter().zip(gravity_b_m_s2.iter()) {
-            add(column, *g);
+            add(&mut x, column, *g);
         }
         for (column, m) in self.columns[self.n + 3..self.n + 9].iter().zip(&monomials) {
-            add(column, *m);
+            add(&mut x, column, *m);
         }
         RigidAccel { alpha_b_rad_s2: Vector3::new(x[0], x[1], x[2]), accel_b_m_s2: Vector3::new(x[3], x[4], x[5]) }
+    }
+}
+
+/// `x += column * v`, element by element.
+#[inline(always)]
+fn add(x: &mut [f64; 6], column: &[f64; 6], v: f64) {
+    for k in 0..6 {
+        x[k] += column[k] * v;
     }
 }
 

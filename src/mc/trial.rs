@@ -193,7 +193,7 @@ fn record(
     let gravity_i = Vector3::new(0.0, 0.0, -g);
     // Every compensation navigates the same outputs (the same noise stream) along the same steps:
     // they go in lockstep over one evaluation of the outputs, on the run's precomputed motion.
-    let mut compensators: Vec<Option<Compensator>> = nav
+    let compensators: Vec<Option<Compensator>> = nav
         .compensations
         .iter()
         .map(|comp| {
@@ -215,10 +215,9 @@ fn record(
     let mut fill = |i: usize, step: &PlanStep, outputs: &mut [Vec<f64>; 3]| {
         source.fill_step(&grid.motions[i], step.t_s, step.h_s, outputs);
     };
-    let mut active: Vec<&mut Compensator> = compensators.iter_mut().flatten().collect();
+    let active: Vec<&Compensator> = compensators.iter().flatten().collect();
     let mut navigated =
-        navigate_together(&grid.plan, &grid.initial, &grid.record_truths, &mut fill, &mut active, &gravity_i)
-            .into_iter();
+        navigate_together(&grid.plan, &grid.initial, &grid.record_truths, &mut fill, &active, &gravity_i).into_iter();
     let mut drift = Vec::with_capacity(nav.compensations.len() * nav.horizons_s.len() * DRIFT_METRICS.len());
     for c in &compensators {
         match c.as_ref().and_then(|_| navigated.next()) {

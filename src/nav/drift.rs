@@ -80,7 +80,7 @@ pub fn drift_study(
     let gravity_i = nalgebra::Vector3::new(0.0, 0.0, -setup.gravity_m_s2);
     let mut rows = Vec::new();
     for (name, params) in compensations {
-        let mut compensator = crate::sensor::Compensator::new(setup.array, params)?;
+        let compensator = crate::sensor::Compensator::new(setup.array, params)?;
         let mut source = crate::sensor::SimulatedArray::new(setup.array, setup.truth, setup.trajectory, gravity_i);
         if !setup.noise.is_zero() {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(setup.noise_seed);
@@ -89,7 +89,7 @@ pub fn drift_study(
             source = source.with_noise(generator, rng, setup.noise.quantization_m_s2);
         }
         let samples =
-            super::navigate(setup.trajectory, &mut source, &mut compensator, &gravity_i, setup.step_s, horizons_s);
+            super::navigate(setup.trajectory, &mut source, &compensator, &gravity_i, setup.step_s, horizons_s);
         rows.extend(samples.into_iter().map(|sample| DriftRow { compensation: (*name).to_string(), sample }));
     }
     Ok(rows)

@@ -9,6 +9,7 @@
 pub mod drift;
 pub mod grid;
 pub mod navigator;
+pub mod pair;
 pub mod plan;
 pub mod trajectory;
 

@@ -1,8 +1,9 @@
 //! The navigation integrator: RK4 on (attitude quaternion, rate, velocity, position).
 
-use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use nalgebra::{UnitQuaternion, Vector3};
 
 use super::drift::DriftSample;
+use super::pair::{L, PairSolve, PairState};
 use super::plan::{Plan, PlanStep};
 use super::trajectory::{InitialState, Trajectory, TruthState};
 use crate::sensor::params::Compensator;
@@ -22,21 +23,6 @@ impl From<InitialState> for NavState {
     }
 }
 
-/// Unnormalised state and derivative, for the RK4 stages.
-#[derive(Clone, Copy)]
-struct Raw {
-    q: Quaternion<f64>,
-    w: Vector3<f64>,
-    v: Vector3<f64>,
-    r: Vector3<f64>,
-}
-
-impl Raw {
-    fn axpy(&self, h: f64, d: &Raw) -> Raw {
-        Raw { q: self.q + d.q * h, w: self.w + d.w * h, v: self.v + d.v * h, r: self.r + d.r * h }
-    }
-}
-
 /// A source of array outputs along the trajectory: `outputs(t, out)` fills the raw outputs at
 /// time `t`; `begin_step(t, h)` is called before each step (a noisy source draws its noise there,
 /// held over the step).
@@ -51,7 +37,7 @@ pub trait OutputSource {
 pub fn navigate(
     trajectory: &Trajectory,
     source: &mut dyn OutputSource,
-    compensator: &mut Compensator,
+    compensator: &Compensator,
     gravity_i_m_s2: &Vector3<f64>,
     step_s: f64,
     horizons_s: &[f64],
@@ -64,7 +50,7 @@ pub fn navigate(
             source.outputs(t_s, out);
         }
     };
-    navigate_together(&plan, &trajectory.truth(0.0), &truths, &mut fill, &mut [compensator], gravity_i_m_s2)
+    navigate_together(&plan, &trajectory.truth(0.0), &truths, &mut fill, &[compensator], gravity_i_m_s2)
         .pop()
         .unwrap_or_default()
 }
@@ -85,88 +71,77 @@ pub fn navigate_together(
     initial: &TruthState,
     record_truths: &[TruthState],
     fill: &mut StepFill<'_>,
-    compensators: &mut [&mut Compensator],
+    compensators: &[&Compensator],
     gravity_i_m_s2: &Vector3<f64>,
 ) -> Vec<Vec<DriftSample>> {
     let n = compensators.first().map_or(0, |c| c.mechanization().len());
     let mut outputs = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
-    let start = Raw { q: *initial.q_b_i.quaternion(), w: initial.omega_b_rad_s, v: initial.v_i_m_s, r: initial.r_i_m };
     let m = compensators.len();
-    let mut states = vec![start; m];
+    // Compensations go two by two in the lanes of a pair (`pair`); an odd one out fills both
+    // lanes of its pair and reads only the first.
+    let lanes: Vec<[usize; 2]> = (0..m).step_by(2).map(|c| [c, (c + 1).min(m - 1)]).collect();
+    let solves: Vec<PairSolve> =
+        lanes.iter().map(|&[a, b]| PairSolve::new([compensators[a], compensators[b]])).collect();
+    let mut start = PairState::default();
+    for l in 0..2 {
+        start.set_lane(l, initial.q_b_i.quaternion(), &initial.omega_b_rad_s, &initial.v_i_m_s, &initial.r_i_m);
+    }
+    let mut states = vec![start; lanes.len()];
     let mut active = vec![true; m];
     let mut drift: Vec<Vec<DriftSample>> = vec![Vec::with_capacity(plan.records.len()); m];
     let mut next_record = 0;
-    let record_due =
-        |done: usize, next_record: &mut usize, states: &[Raw], active: &[bool], drift: &mut [Vec<DriftSample>]| {
-            while *next_record < plan.records.len() && plan.records[*next_record].0 == done {
-                let horizon = plan.records[*next_record].1;
-                for c in (0..m).filter(|&c| active[c]) {
-                    let x = &states[c];
-                    let nav = NavState {
-                        q_b_i: UnitQuaternion::new_normalize(x.q),
-                        omega_b_rad_s: x.w,
-                        v_i_m_s: x.v,
-                        r_i_m: x.r,
-                    };
-                    drift[c].push(DriftSample::new(horizon, &nav, &record_truths[*next_record]));
-                }
-                *next_record += 1;
+    let record_due = |done: usize,
+                      next_record: &mut usize,
+                      states: &[PairState],
+                      active: &[bool],
+                      drift: &mut [Vec<DriftSample>]| {
+        while *next_record < plan.records.len() && plan.records[*next_record].0 == done {
+            let horizon = plan.records[*next_record].1;
+            for c in (0..m).filter(|&c| active[c]) {
+                let (q, w, v, r) = states[c / 2].lane(c % 2);
+                let nav = NavState { q_b_i: UnitQuaternion::new_normalize(q), omega_b_rad_s: w, v_i_m_s: v, r_i_m: r };
+                drift[c].push(DriftSample::new(horizon, &nav, &record_truths[*next_record]));
             }
-        };
+            *next_record += 1;
+        }
+    };
+    // The outputs' terms of each pair at the step's three distinct times: they do not depend on
+    // the state, so they are computed once per time and off the stages' chain of dependencies.
+    let mut terms = vec![[[L::default(); 6]; 3]; lanes.len()];
     for (i, step) in plan.steps.iter().enumerate() {
         record_due(i, &mut next_record, &states, &active, &mut drift);
         if !active.iter().any(|&a| a) {
             break;
         }
         fill(i, step, &mut outputs);
-        let h = step.h_s;
-        for c in 0..m {
-            if !active[c] {
+        for (p, pair) in lanes.iter().enumerate() {
+            if !active[pair[0]] && !active[pair[1]] {
                 continue;
             }
-            let comp = &mut *compensators[c];
-            let x = states[c];
-            let k1 = derivative(&x, &outputs[0], comp, gravity_i_m_s2);
-            let k2 = derivative(&x.axpy(0.5 * h, &k1), &outputs[1], comp, gravity_i_m_s2);
-            let k3 = derivative(&x.axpy(0.5 * h, &k2), &outputs[1], comp, gravity_i_m_s2);
-            let k4 = derivative(&x.axpy(h, &k3), &outputs[2], comp, gravity_i_m_s2);
-            let mut y = Raw {
-                q: x.q + (k1.q + k2.q * 2.0 + k3.q * 2.0 + k4.q) * (h / 6.0),
-                w: x.w + (k1.w + k2.w * 2.0 + k3.w * 2.0 + k4.w) * (h / 6.0),
-                v: x.v + (k1.v + k2.v * 2.0 + k3.v * 2.0 + k4.v) * (h / 6.0),
-                r: x.r + (k1.r + k2.r * 2.0 + k3.r * 2.0 + k4.r) * (h / 6.0),
-            };
-            y.q = y.q.normalize();
+            for (t, out) in terms[p].iter_mut().zip(&outputs) {
+                *t = solves[p].output_terms(out);
+            }
+            let y = solves[p].step(&states[p], &terms[p], step.h_s, gravity_i_m_s2);
             // The rate equation is quadratic in omega (centripetal terms): with large enough
-            // errors it blows up in finite time. A diverged navigation reports infinite errors.
-            if y.w.iter().chain(y.v.iter()).chain(y.r.iter()).all(|v| v.is_finite()) && y.q.norm().is_finite() {
-                states[c] = y;
-            } else {
-                active[c] = false;
-                drift[c].extend(plan.records[next_record..].iter().map(|&(_, h)| DriftSample::diverged(h)));
+            // errors it blows up in finite time. A diverged navigation reports infinite errors
+            // from then on; its lane keeps its last finite state and is no longer read.
+            let finite = y.finite();
+            let used = if pair[0] == pair[1] { 1 } else { 2 };
+            if (0..used).all(|l| active[pair[l]] && finite[l]) {
+                states[p] = y;
+                continue;
+            }
+            for (l, &c) in pair.iter().enumerate().take(used) {
+                if active[c] && finite[l] {
+                    let (q, w, v, r) = y.lane(l);
+                    states[p].set_lane(l, &q, &w, &v, &r);
+                } else if active[c] {
+                    active[c] = false;
+                    drift[c].extend(plan.records[next_record..].iter().map(|&(_, h)| DriftSample::diverged(h)));
+                }
             }
         }
     }
     record_due(plan.steps.len(), &mut next_record, &states, &active, &mut drift);
     drift
-}
-
-/// The state's derivative with the outputs `outputs` compensated by `compensator`.
-///
-/// Written out in scalars on the unnormalised quaternion `q = (s, u)` (the RK4 stages leave it
-/// slightly off unit length): a vector rotates as `R(q) v = ((s^2 - u.u) v + 2 (u.v) u + 2 s u x v)
-/// / |q|^2`, so no square root and no normalised copy are needed.
-#[inline]
-fn derivative(x: &Raw, outputs: &[f64], compensator: &mut Compensator, gravity_i_m_s2: &Vector3<f64>) -> Raw {
-    let s = x.q.w;
-    let u = Vector3::new(x.q.i, x.q.j, x.q.k);
-    let inv_n2 = 1.0 / (s * s + u.norm_squared());
-    let ss_uu = s * s - u.norm_squared();
-    // Gravity in body axes: R(q)^T g_i (the conjugate's rotation: u -> -u).
-    let g = gravity_i_m_s2;
-    let gravity_b = (g * ss_uu + u * (2.0 * u.dot(g)) - u.cross(g) * (2.0 * s)) * inv_n2;
-    let acc = compensator.rigid_accel(outputs, &x.w, &gravity_b);
-    let a = &acc.accel_b_m_s2;
-    let accel_i = (a * ss_uu + u * (2.0 * u.dot(a)) + u.cross(a) * (2.0 * s)) * inv_n2;
-    Raw { q: x.q * Quaternion::from_imag(x.w) * 0.5, w: acc.alpha_b_rad_s2, v: accel_i, r: x.v }
 }

@@ -2,7 +2,7 @@
 
 use nalgebra::Vector3;
 
-use crate::array::{Array, FoldedSolve, Mechanization, RankError, RigidAccel};
+use crate::array::{Array, FoldedSolve, Mechanization, RankError};
 use crate::motion::RigidMotion;
 
 /// Error parameters of one accelerometer.
@@ -90,14 +90,9 @@ impl Compensator {
         Ok(Self { mechanization, folded })
     }
 
-    /// `(alpha, a_o)` in body axes from raw outputs, current body rate and gravity in body axes.
-    pub fn rigid_accel(
-        &mut self,
-        outputs: &[f64],
-        omega_b_rad_s: &Vector3<f64>,
-        gravity_b_m_s2: &Vector3<f64>,
-    ) -> RigidAccel {
-        self.folded.solve(outputs, omega_b_rad_s, gravity_b_m_s2)
+    /// The folded solve of this compensation (one linear map; `array::folded`).
+    pub fn folded(&self) -> &FoldedSolve {
+        &self.folded
     }
 
     pub fn mechanization(&self) -> &Mechanization {

@@ -161,8 +161,8 @@ fn white_noise_rate_error_variance_matches_closed_form() {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let generator = NoiseGenerator::new(&spec, 6, 1.0 / step, &mut rng);
         let mut source = SimulatedArray::new(&cube, &params, &traj, gravity).with_noise(generator, rng, 0.0);
-        let mut comp = Compensator::new(&cube, &params).unwrap();
-        let d = navigate(&traj, &mut source, &mut comp, &gravity, step, &[t_end]);
+        let comp = Compensator::new(&cube, &params).unwrap();
+        let d = navigate(&traj, &mut source, &comp, &gravity, step, &[t_end]);
         sum_sq += d[0].rate_err_rad_s.powi(2);
     }
     // |d omega|^2 is a scaled chi-square with 3 degrees of freedom: relative sd of the mean is
@@ -198,8 +198,8 @@ fn white_noise_drift_at_rest_matches_the_closed_forms() {
         let mut rng = ChaCha8Rng::seed_from_u64(10_000 + seed);
         let generator = NoiseGenerator::new(&spec, 6, 1.0 / step, &mut rng);
         let mut source = SimulatedArray::new(&cube, &params, &traj, gravity).with_noise(generator, rng, 0.0);
-        let mut comp = Compensator::new(&cube, &params).unwrap();
-        let d = navigate(&traj, &mut source, &mut comp, &gravity, step, &[t])[0];
+        let comp = Compensator::new(&cube, &params).unwrap();
+        let d = navigate(&traj, &mut source, &comp, &gravity, step, &[t])[0];
         for (k, v) in
             [d.rate_err_rad_s, d.attitude_err_rad, d.velocity_err_m_s, d.position_err_m].into_iter().enumerate()
         {
