@@ -228,7 +228,7 @@ impl PairSolve {
 mod tests {
     use super::*;
     use crate::array::Array;
-    use crate::sensor::params::{ArrayParams, SensorParams};
+    use crate::sensor::params::random_params;
     use rand::{RngExt, SeedableRng};
 
     /// The scalar integrator the pair replaced, written with nalgebra's quaternion and vector
@@ -276,22 +276,9 @@ mod tests {
         let cube = Array::cube(0.1).expect("cube");
         let g = Vector3::new(0.0, 0.0, -9.80665);
         for _ in 0..20 {
+            let comps: Vec<Compensator> =
+                (0..2).map(|_| Compensator::new(&cube, &random_params(&cube, &mut rng)).expect("full rank")).collect();
             let mut v = |s: f64| Vector3::from_fn(|_, _| rng.random_range(-s..s));
-            let comps: Vec<Compensator> = (0..2)
-                .map(|_| {
-                    let sensors = cube
-                        .accelerometers()
-                        .iter()
-                        .map(|a| SensorParams {
-                            scale_factor: 1.0 + v(1e-3).x,
-                            bias_m_s2: v(0.05).y,
-                            axis: (a.axis + v(0.01)).normalize(),
-                            location_error_m: v(2e-3),
-                        })
-                        .collect();
-                    Compensator::new(&cube, &ArrayParams { sensors }).expect("full rank")
-                })
-                .collect();
             let pair = PairSolve::new([&comps[0], &comps[1]]);
             let mut scalar: Vec<Raw> = (0..2)
                 .map(|_| Raw { q: Quaternion::from_parts(1.0 + v(0.3).x, v(0.3)), w: v(3.0), v: v(2.0), r: v(1.0) })

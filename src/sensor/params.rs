@@ -99,3 +99,22 @@ impl Compensator {
         &self.mechanization
     }
 }
+
+/// Random parameters near `array`'s nominal ones (scale factors within 1e-3 of 1, biases within
+/// 0.05 m/s^2, axes tilted by up to about 0.01, locations within 2 mm), for tests.
+#[cfg(test)]
+pub(crate) fn random_params(array: &Array, rng: &mut impl rand::Rng) -> ArrayParams {
+    use rand::RngExt;
+    let mut v = |s: f64| Vector3::from_fn(|_, _| rng.random_range(-s..s));
+    let sensors = array
+        .accelerometers()
+        .iter()
+        .map(|a| SensorParams {
+            scale_factor: 1.0 + v(1e-3).x,
+            bias_m_s2: v(0.05).y,
+            axis: (a.axis + v(0.01)).normalize(),
+            location_error_m: v(2e-3),
+        })
+        .collect();
+    ArrayParams { sensors }
+}

@@ -162,7 +162,6 @@ impl FoldedSensors {
 mod tests {
     use super::*;
     use crate::nav::Trajectory;
-    use crate::sensor::SensorParams;
     use rand::{RngExt, SeedableRng};
 
     /// `fill_step`'s folded outputs against `ArrayParams::outputs` (the specific force at each
@@ -173,18 +172,8 @@ mod tests {
         let cube = Array::cube(0.1).expect("cube");
         let trajectory = Trajectory::paper_manoeuvre(1.0);
         for _ in 0..100 {
+            let truth = crate::sensor::params::random_params(&cube, &mut rng);
             let mut v = |s: f64| Vector3::from_fn(|_, _| rng.random_range(-s..s));
-            let sensors = cube
-                .accelerometers()
-                .iter()
-                .map(|a| SensorParams {
-                    scale_factor: 1.0 + v(1e-3).x,
-                    bias_m_s2: v(0.05).y,
-                    axis: (a.axis + v(0.01)).normalize(),
-                    location_error_m: v(2e-3),
-                })
-                .collect();
-            let truth = ArrayParams { sensors };
             let motion = |v: &mut dyn FnMut(f64) -> Vector3<f64>| RigidMotion {
                 accel_b_m_s2: v(20.0),
                 alpha_b_rad_s2: v(5.0),
