@@ -55,23 +55,28 @@ impl FoldedSolve {
         Self { columns, n }
     }
 
-    /// `(alpha, a_o)` in body axes from raw outputs, the body rate and gravity in body axes.
+    /// `(alpha, a_o)` in body axes from raw outputs, the body rate and gravity in body axes. (The
+    /// navigation does the same arithmetic two compensations at a time: `nav::pair`.)
     #[inline]
     pub fn solve(&self, outputs: &[f64], omega_b_rad_s: &Vector3<f64>, gravity_b_m_s2: &Vector3<f64>) -> RigidAccel {
-        self.solve_from(self.output_terms(outputs), omega_b_rad_s, gravity_b_m_s2)
-    }
-
-    /// The part of the solve that depends on the outputs only: the constant plus the outputs'
-    /// columns. The navigation computes it once per distinct time, off the state's chain of
-    /// dependencies; [`FoldedSolve::solve_from`] adds the state's terms in the same order as
-    /// [`FoldedSolve::solve`], so the two give the same bits.
-    #[inline]
-    pub fn output_terms(&self, outputs: &[f64]) -> [f64; 6] {
+        let w = omega_b_rad_s;
+        let monomials = [w.x * w.x, w.y * w.y, w.z * w.z, w.x * w.y, w.x * w.z, w.y * w.z];
         let mut x = self.columns[self.n + 9];
+        let mut add = |column: &[f64; 6], v: f64| {
+            for k in 0..6 {
+                x[k] += column[k] * v;
+            }
+        };
         for (column, s) in self.columns[..self.n].iter().zip(outputs) {
-            add(&mut x, column, *s);
+            add(column, *s);
         }
-        x
+        for (column, g) in self.columns[self.n..self.n + 3].iter().zip(gravity_b_m_s2.iter()) {
+            add(column, *g);
+        }
+        for (column, m) in self.columns[self.n + 3..self.n + 9].iter().zip(&monomials) {
+            add(column, *m);
+        }
+        RigidAccel { alpha_b_rad_s2: Vector3::new(x[0], x[1], x[2]), accel_b_m_s2: Vector3::new(x[3], x[4], x[5]) }
     }
 
     /// The constant column (the biases' share).
@@ -89,35 +94,6 @@ impl FoldedSolve {
     /// `(alpha, a_o)`.
     pub fn state_columns(&self) -> &[[f64; 6]] {
         &self.columns[self.n..self.n + 9]
-    }
-
-    /// `(alpha, a_o)` from the outputs' terms ([`FoldedSolve::output_terms`]), the body rate and
-    /// gravity in body axes.
-    #[inline]
-    pub fn solve_from(
-        &self,
-        output_terms: [f64; 6],
-        omega_b_rad_s: &Vector3<f64>,
-        gravity_b_m_s2: &Vector3<f64>,
-    ) -> RigidAccel {
-        let w = omega_b_rad_s;
-        let monomials = [w.x * w.x, w.y * w.y, w.z * w.z, w.x * w.y, w.x * w.z, w.y * w.z];
-        let mut x = output_terms;
-        for (column, g) in self.columns[self.n..self.n + 3].iter().zip(gravity_b_m_s2.iter()) {
-            add(&mut x, column, *g);
-        }
-        for (column, m) in self.columns[self.n + 3..self.n + 9].iter().zip(&monomials) {
-            add(&mut x, column, *m);
-        }
-        RigidAccel { alpha_b_rad_s2: Vector3::new(x[0], x[1], x[2]), accel_b_m_s2: Vector3::new(x[3], x[4], x[5]) }
-    }
-}
-
-/// `x += column * v`, element by element.
-#[inline(always)]
-fn add(x: &mut [f64; 6], column: &[f64; 6], v: f64) {
-    for k in 0..6 {
-        x[k] += column[k] * v;
     }
 }
 

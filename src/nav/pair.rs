@@ -148,7 +148,7 @@ impl PairSolve {
     }
 
     /// The terms that depend on the raw outputs only (the same in both lanes), in
-    /// `FoldedSolve::output_terms`' order: the constant, then each accelerometer's column.
+    /// `FoldedSolve::solve`'s order: the constant, then each accelerometer's column.
     #[inline]
     pub fn output_terms(&self, outputs: &[f64]) -> [L; 6] {
         let mut x = self.constant;
@@ -174,7 +174,7 @@ impl PairSolve {
         let (ug2, uxg, s2) = (dot(&u, &g) * 2.0, cross(&u, &g), s * 2.0);
         let gb = |a: usize| (g[a] * ss_uu + u[a] * ug2 - uxg[a] * s2) * inv_n2;
         let gravity_b: V3 = [gb(0), gb(1), gb(2)];
-        // The folded solve's state terms, in `FoldedSolve::solve_from`'s order.
+        // The folded solve's state terms, in `FoldedSolve::solve`'s order.
         let w = &x.w;
         let monomials = [w[0] * w[0], w[1] * w[1], w[2] * w[2], w[0] * w[1], w[0] * w[2], w[1] * w[2]];
         let mut acc = *terms;
