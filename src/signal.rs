@@ -33,6 +33,13 @@ impl FractionalDelay {
         Self { first: base - Self::HALF + 1, weights, d }
     }
 
+    /// The samples [`Self::at`] reads for index `i` of a signal of `len` samples (first, last).
+    pub fn window(&self, i: usize, len: usize) -> (usize, usize) {
+        let last = len as i64 - 1;
+        let at = |m: i64| (i as i64 + self.first + m).clamp(0, last) as usize;
+        if self.d == 0.0 { (i, i) } else { (at(0), at(self.weights.len() as i64 - 1)) }
+    }
+
     /// `y` at index `i - d`.
     pub fn at(&self, y: &[f64], i: usize) -> f64 {
         if self.d == 0.0 {

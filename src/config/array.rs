@@ -32,7 +32,7 @@
 //! [[gyroscope]]
 //! axis = [1.0, 0.0, 0.0]
 //! column = "gyro1_x_rad_s"
-//! range_rad_s = 34.9
+//! range_rad_s = 34.87
 //! ```
 
 use std::path::Path;

@@ -8,6 +8,13 @@
 //! over the accelerometer's scale factor). An output pushed past the accelerometer's range is
 //! clipped at the rail, as the part would.
 //!
+//! **What was censored stays censored.** A railed output's true value is unknown, so the effect on
+//! it is unknown too: it stays at the rail (and is read as clipped). An output computed from a
+//! railed one (the delay's interpolation window, the cross-coupling's partner) is unknown as well
+//! and is set to the rail. A gyroscope row with any axis at its range is left as it is (its
+//! least-squares rate is unknown; the row stays flagged). Without this, a scale below 1 moved railed
+//! values inside the range, where they were fitted as measurements.
+//!
 //! | effect | what is done to output `s` at time `t` | value unit |
 //! | --- | --- | --- |
 //! | `bias_turn_on` | `s + V` | m/s^2 |
@@ -94,8 +101,8 @@ pub fn inject(
         j: accelerometer,
         array: array_name.clone(),
     })?;
-    // The cross-coupling's partner: the axis of the same package along e1, and its sign.
-    let partner: Option<(Vec<f64>, f64)> = if effect == "cross_coupling" {
+    // The cross-coupling's partner: the axis of the same package along e1; its column, sign and range.
+    let partner: Option<(Vec<f64>, f64, f64)> = if effect == "cross_coupling" {
         let acc = array.array.accelerometers();
         let (e1, _) = crate::sensor::misalignment::tilt_basis(&acc[j].axis);
         let found = (0..n).find(|&m| {
@@ -108,7 +115,7 @@ pub fn inject(
             j: m + 1,
             array: array_name.clone(),
         })?;
-        Some((col.to_vec(), acc[m].axis.dot(&e1).signum()))
+        Some((col.to_vec(), acc[m].axis.dot(&e1).signum(), array.ranges_m_s2[m]))
     } else {
         None
     };
@@ -120,19 +127,27 @@ pub fn inject(
         (Some(a), Some(b)) if t.len() > 1 => (b - a) / (t.len() - 1) as f64,
         _ => 1.0,
     };
+    let delay = crate::signal::FractionalDelay::new(value / mean_dt);
+    let railed = |y: &[f64], a: usize, b: usize| y[a..=b].iter().any(|v| v.abs() >= range);
     for (i, v) in s.iter_mut().enumerate() {
         let x = original[i];
-        *v = match effect {
-            "bias_turn_on" => x + value,
-            "bias_time_drift" => x + value * (t[i] - t0),
-            "scale_factor_quadratic" => x + value * x * x,
-            "scale_factor_cubic" => x + value * x * x * x,
-            "cross_coupling" => partner.as_ref().map_or(x, |(p, sign)| x + value * x * sign * p[i]),
-            _ => crate::signal::fractional_delay(&original, i, value / mean_dt),
-        };
-        if v.abs() > range {
-            *v = range.copysign(*v);
+        if x.abs() >= range {
+            continue;
         }
+        let (new, from_railed) = match effect {
+            "bias_turn_on" => (x + value, false),
+            "bias_time_drift" => (x + value * (t[i] - t0), false),
+            "scale_factor_quadratic" => (x + value * x * x, false),
+            "scale_factor_cubic" => (x + value * x * x * x, false),
+            "cross_coupling" => partner
+                .as_ref()
+                .map_or((x, false), |(p, sign, rail)| (x + value * x * sign * p[i], p[i].abs() >= *rail)),
+            _ => {
+                let (a, b) = delay.window(i, original.len());
+                (delay.at(&original, i), railed(&original, a, b))
+            }
+        };
+        *v = if from_railed || new.abs() >= range { range.copysign(new) } else { new };
     }
     Ok(())
 }
@@ -146,7 +161,8 @@ pub const GYRO_ELEMENTS: [&str; 9] = ["xx", "xy", "xz", "yx", "yy", "yz", "zx", 
 /// gyroscope axes, as a recording reads it) becomes `(I + G)^-1 w`, so that the true rate is
 /// `(I + G)` times the reference, as `gyro_scale_misalignment` models it. Each gyroscope column
 /// `y_g` gains `a_g . ((I + G)^-1 - I) w`, which moves the least-squares rate by exactly that and
-/// leaves each axis's own noise in place; an output pushed past its range is clipped at the rail.
+/// leaves each axis's own noise in place; an output pushed past its range is clipped at the rail,
+/// and a row with an axis at its range is left as it is (censored).
 pub fn inject_gyro(table: &mut Table, array: &RecordingArray, element: &str, value: f64) -> Result<(), InjectError> {
     let position =
         GYRO_ELEMENTS.iter().position(|e| *e == element).ok_or_else(|| InjectError::Element(element.into()))?;
@@ -171,6 +187,9 @@ pub fn inject_gyro(table: &mut Table, array: &RecordingArray, element: &str, val
     }
     let rows = table.data.first().map_or(0, Vec::len);
     for i in 0..rows {
+        if gyros.iter().zip(&columns).any(|(gyro, &k)| table.data[k][i].abs() >= gyro.range_rad_s) {
+            continue;
+        }
         let b: Vector3<f64> = gyros.iter().zip(&columns).map(|(gyro, &k)| gyro.axis * table.data[k][i]).sum();
         let add = change * (inverse * b);
         for (gyro, &k) in gyros.iter().zip(&columns) {
@@ -186,6 +205,57 @@ mod tests {
     use super::*;
     use crate::array::Array;
     use crate::selfcal::recording::ReferenceGyro;
+
+    /// A railed output's true value is unknown: it stays at the rail under every effect, and an
+    /// output whose delay window reads it goes to the rail; outputs whose window is clear of it are
+    /// delayed as usual. A gyroscope row with an axis at its range is left as it is.
+    #[test]
+    fn what_was_censored_stays_censored() {
+        let mut array = RecordingArray::plain(Array::cube(0.1).unwrap(), std::path::Path::new("a.toml"));
+        array.ranges_m_s2[0] = 10.0;
+        let rows = 200;
+        // A slow sine that rails at +10 around row 100 (rows 98-102).
+        let signal: Vec<f64> =
+            (0..rows).map(|i| if (98..=102).contains(&i) { 10.0 } else { 9.0 * (i as f64 * 0.01).sin() }).collect();
+        let table = |col: &[f64]| Table {
+            path: "r.csv".into(),
+            names: vec!["t_s".into(), "s1".into()],
+            data: vec![(0..rows).map(|i| i as f64 * 0.016).collect(), col.to_vec()],
+            first_null_row: vec![None; 2],
+        };
+        for (effect, value) in [("scale_factor_quadratic", -1e-2), ("bias_turn_on", -0.5), ("sampling_delay", 4e-3)] {
+            let mut t = table(&signal);
+            inject(&mut t, &array, effect, 1, value).unwrap();
+            for i in 98..=102 {
+                assert_eq!(t.data[1][i], 10.0, "{effect}: row {i} stays railed");
+            }
+            assert!(t.data[1][20] != signal[20] && t.data[1][20].abs() < 10.0, "{effect}: row 20 changed, in range");
+        }
+        let mut t = table(&signal);
+        inject(&mut t, &array, "sampling_delay", 1, 4e-3).unwrap();
+        // A quarter-sample delay reads rows i - 16 to i + 15.
+        for i in 70..=130 {
+            let window_reads_rail = i + 15 >= 98 && i <= 102 + 16;
+            assert_eq!(t.data[1][i] == 10.0, window_reads_rail, "row {i}: {}", t.data[1][i]);
+        }
+        let clear = crate::signal::fractional_delay(&signal, 40, 0.25);
+        assert_eq!(t.data[1][40], clear);
+
+        array.gyroscopes = [Vector3::x(), Vector3::y(), Vector3::z()]
+            .iter()
+            .enumerate()
+            .map(|(i, a)| ReferenceGyro { axis: *a, column: format!("g{i}"), range_rad_s: 5.0 })
+            .collect();
+        let mut g = Table {
+            path: "r.csv".into(),
+            names: (0..3).map(|k| format!("g{k}")).collect(),
+            data: vec![vec![1.0, 5.0], vec![2.0, 2.0], vec![3.0, 3.0]],
+            first_null_row: vec![None; 3],
+        };
+        inject_gyro(&mut g, &array, "yy", -0.1).unwrap();
+        assert_eq!([g.data[0][1], g.data[1][1], g.data[2][1]], [5.0, 2.0, 3.0], "the railed row is untouched");
+        assert!((g.data[1][0] - 2.0 / 0.9).abs() < 1e-12, "the other row reads through (I + G)^-1");
+    }
 
     /// Four gyroscope axes (three orthogonal and a skew one) with noisy columns; after injecting
     /// `G_xy = 0.01` the least-squares rate, computed here from the columns, is `(I + G)^-1` times

@@ -77,6 +77,51 @@ pub struct Recording {
     pub gyro_clipped: Vec<bool>,
 }
 
+/// A column's values at one magnitude this close below its stated range, held at least
+/// [`RAIL_REPEATS`] times, are a rail the array file does not know.
+pub const RAIL_BELOW_RANGE: f64 = 0.01;
+
+/// How many values at exactly the column's largest magnitude make a rail: a measured signal
+/// quantised to its output's counts repeats its extreme a few times at a slow peak, a rail
+/// hundreds of times (the MIMU4444's gyroscopes: 3,228-4,704 per recording).
+pub const RAIL_REPEATS: usize = 10;
+
+/// Refuses a column whose largest magnitude sits just below `range` ([`RAIL_BELOW_RANGE`]) and is
+/// held by at least [`RAIL_REPEATS`] values: the part clips there (an int16 output rails at
+/// 32767 counts, a little below the data sheet's round range), and with the array file's range
+/// those outputs would be read as measured, not as clipped.
+fn check_rail(
+    path: &Path,
+    column: &str,
+    col: &[f64],
+    range: f64,
+    unit: &str,
+    key: &str,
+    array: &Path,
+) -> Result<(), RecordingError> {
+    if !range.is_finite() {
+        return Ok(());
+    }
+    let largest = col.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    if largest >= range || largest < range * (1.0 - RAIL_BELOW_RANGE) {
+        return Ok(());
+    }
+    let held = col.iter().filter(|v| v.abs() == largest).count();
+    if held < RAIL_REPEATS {
+        return Ok(());
+    }
+    let row = col.iter().position(|v| v.abs() == largest).map_or(1, |i| i + 1);
+    Err(RecordingError::Value {
+        path: path.to_path_buf(),
+        row,
+        column: column.into(),
+        problem: format!(
+            "{held} values sit at {largest} {unit}, just below the range {range} {unit} of the array file {}: the part clips there (a rail the array file does not know), so they would be read as measured; set `{key}` to at most {largest}",
+            array.display()
+        ),
+    })
+}
+
 impl Recording {
     pub fn samples(&self) -> usize {
         self.t_s.len()
@@ -149,6 +194,7 @@ impl Recording {
         let mut clipped = vec![false; rows * n];
         for (j, name) in array.accelerometer_columns.iter().enumerate() {
             let col = finite_column(name)?;
+            check_rail(&path, name, col, array.ranges_m_s2[j], "m/s^2", "range_m_s2", &array.path)?;
             for (i, &v) in col.iter().enumerate() {
                 outputs[(i, j)] = v;
                 clipped[i * n + j] = v.abs() >= array.ranges_m_s2[j];
@@ -190,6 +236,9 @@ impl Recording {
         } else {
             let cols: Vec<&[f64]> =
                 array.gyroscopes.iter().map(|g| finite_column(&g.column)).collect::<Result<_, _>>()?;
+            for (g, col) in array.gyroscopes.iter().zip(&cols) {
+                check_rail(&path, &g.column, col, g.range_rad_s, "rad/s", "range_rad_s", &array.path)?;
+            }
             let normal: nalgebra::Matrix3<f64> = array.gyroscopes.iter().map(|g| g.axis * g.axis.transpose()).sum();
             let inv = normal.try_inverse().unwrap_or_else(nalgebra::Matrix3::zeros);
             let mut rate = Vec::with_capacity(rows);

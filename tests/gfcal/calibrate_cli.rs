@@ -117,6 +117,18 @@ fn nan_time_backwards_and_everything_clipped_are_refused_naming_row_and_column()
     refused(&clipped, &["all clipped"]);
 }
 
+/// A gyroscope column whose values pile up just below the array file's range (a rail the file does
+/// not know): refused, naming the column, the value and the key to set.
+#[test]
+fn a_rail_below_the_array_files_range_is_refused() {
+    let mut rows = simulated_rows(&mimu_array(), 7, 12.0);
+    let c = column(&rows, "gyro3_z_rad_s");
+    for r in rows.iter_mut().skip(300).take(20) {
+        r[c] = "-34.8".into();
+    }
+    refused(&rows, &["data row 300", "gyro3_z_rad_s", "20 values sit at 34.8 rad/s", "range_rad_s"]);
+}
+
 /// Without a rotation phase, static poses of unknown direction need 9 (8 leave a deformation of
 /// the pose directions that the sensor parameters absorb: `selfcal::fit`); with 10 the intrinsic
 /// parameters are calibrated and the locations named as not identifiable.

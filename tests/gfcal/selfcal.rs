@@ -202,6 +202,29 @@ fn shared_recording(k: usize) -> PathBuf {
     repo().join(format!("../shared/data/mimu4444/recording_{k}.parquet"))
 }
 
+/// The board's gyroscopes rail at their int16 full scale, +34.8716 and -34.8725 rad/s, below the
+/// data sheet's 34.907 (counted in the recordings, 2026-11-24): with the array file's 34.87 every
+/// railed row is flagged (852-1,260 per recording, each at -34.87253 on some axis), and with the
+/// nominal 34.9 a recording is refused, naming a gyroscope column and the key to set, instead of
+/// its railed rates being read as measured.
+#[test]
+fn the_real_gyroscopes_rails_are_censored_and_a_range_above_them_is_refused() {
+    let array = mimu_array();
+    for k in 1..=6 {
+        let rec = gfcal::selfcal::recording::Recording::read(&shared_recording(k), &array).expect("reads");
+        let railed = rec.gyro_clipped.iter().filter(|&&c| c).count();
+        assert!((852..=1260).contains(&railed), "recording {k}: {railed} railed rows");
+    }
+    let mut nominal = mimu_array();
+    for g in &mut nominal.gyroscopes {
+        g.range_rad_s = 34.9;
+    }
+    let err = gfcal::selfcal::recording::Recording::read(&shared_recording(1), &nominal).unwrap_err().to_string();
+    for says in ["recording_1.parquet", "gyro", "34.8725", "range_rad_s", "mimu4444_corners.toml"] {
+        assert!(err.contains(says), "`{says}` missing: {err}");
+    }
+}
+
 /// The six real recordings: segmented and calibrated, with the checks decided before the
 /// answer was seen (results/mimu4444/EXPECTATIONS.md, items 1, 2 and the gauge).
 #[test]
