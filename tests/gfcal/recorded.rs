@@ -448,14 +448,12 @@ fn diagnose_writes_a_report_for_recordings() {
 /// a rotation of the accelerometers and the trace a size, 4 of 9 unseen) from the clean pair equals the injected
 /// one's within one sigma of each element, the sigma of that combination from the effect's covariance.
 ///
-/// **It fails** (first run, 2026-11-24). Named: yes. Recovered: no. The seen part's xx element changes by
-/// -2.42e-2 against the injected -5.0e-3 +- 4.1e-3, yy by +8.3e-3 against -5.0e-3 +- 4.0e-3; zz, xy, xz and yz are
-/// within 1.6 sigma. The injection wrecks the `--use-gyro` baseline fit: static chi2/dof 3.0 -> 185 (the static
-/// variance factor's runaway, as with a 2 ms delay). Tried once more at 5e-3, for information only: chi2/dof 3.0 ->
-/// 8.1, xx off by 1.25 sigma, the others within 1. The xx and yy misses scale with the size (-1.9e-2 and -4.9e-3),
-/// so this is not only the baseline's nonlinearity. Not understood; see the README's "Not done".
+/// It failed at first (xx's seen part changed by -2.42e-2 against -5.0e-3 +- 4.1e-3, static chi2/dof 3.0 -> 185):
+/// the array file's gyroscope range, 34.9 rad/s, was above the part's rail (34.87), so no railed rate was
+/// censored, and `inject` moved the railed rates inside the range. With both mended (sixth session; expectations
+/// in EXPECTATIONS.md, "Censored samples un-censored", written before the re-run): every element within 0.06
+/// sigma, static chi2/dof 2.142 clean and injected.
 #[test]
-#[ignore = "fails: the injected G's xx/yy seen part is not recovered on real recordings (see the doc comment)"]
 fn gyroscope_scale_and_misalignment_injected_into_real_recordings_are_named_and_recovered() {
     use nalgebra::{DVector, Matrix3};
     let dir = tempfile::tempdir().unwrap();
@@ -478,6 +476,10 @@ fn gyroscope_scale_and_misalignment_injected_into_real_recordings_are_named_and_
     };
     let clean = run(&real(2), &real(3));
     let with = run(&injected[0], &injected[1]);
+    eprintln!("static chi2/dof: clean {}, injected {}", clean.fitting.static_chi2_dof, with.fitting.static_chi2_dof);
+    // Expectation 1 (EXPECTATIONS.md, "Censored samples un-censored"): the injection leaves the fit's static gap
+    // within 2x of the clean one's.
+    assert!(with.fitting.static_chi2_dof < 2.0 * clean.fitting.static_chi2_dof);
     assert!(with.findings.iter().any(|f| f.name == "gyro_scale_misalignment"), "{:?}", with.not_named);
     let (w, c) = (tried(&with, "gyro_scale_misalignment"), tried(&clean, "gyro_scale_misalignment"));
     assert_eq!(w.unseen, 4);
@@ -499,6 +501,7 @@ fn gyroscope_scale_and_misalignment_injected_into_real_recordings_are_named_and_
         let l = seen(a, b);
         let (got, want) = (l.dot(&extra), l.dot(&truth));
         let sigma = (l.transpose() * cov * &l)[(0, 0)].sqrt();
+        eprintln!("seen part ({a}, {b}): {got:.3e} against {want:.3e} +- {sigma:.2e}");
         assert!((got - want).abs() < sigma, "seen part ({a}, {b}): {got} against {want} +- {sigma}");
     }
 }
