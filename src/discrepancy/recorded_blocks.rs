@@ -189,17 +189,24 @@ pub fn accumulate_recording(
         Some(d) if !state.motion.is_empty() => {
             let reference = d.reference_rate_rad_s.as_ref();
             let nlocal = if reference.is_some() { 6 } else { 9 };
-            let rates = motion_rates(d, state.motion);
+            let df_all = derivatives(d, |i| state.motion[i].f_m_s2);
+            let dalpha_all = derivatives(d, |i| state.motion[i].alpha_rad_s2);
+            // The rate's derivative in the centripetal term's: with `--use-gyro`, that of the
+            // gyroscopes' rate, which the term is formed from. (The fitted angular acceleration is
+            // a free parameter of each sample, pulled by whatever the model leaves out: on the real
+            // recordings a delay of the gyroscopes by 1.2 ms moved the delay read with it by
+            // 0.33-0.51 ms, and with the gyroscopes' derivative by 1.19-1.38 ms.)
+            let omega_dot = reference.map(|r| derivatives(d, |i| r[i]));
             accumulate(d.samples(), cols, Spread::Sandwich, |i| {
                 let m = &state.motion[i];
-                let (df, dalpha) = rates[i];
+                let (df, dalpha) = (df_all[i], dalpha_all[i]);
                 let mut local = DMatrix::zeros(n, nlocal);
                 let mut columns = DMatrix::zeros(n, cols);
                 let mut residual = DVector::zeros(n);
                 let mut weight = DVector::zeros(n);
                 let mut buf = vec![0.0; cols];
                 let w = &m.omega_rad_s;
-                let al = &m.alpha_rad_s2;
+                let al = omega_dot.as_ref().map_or(&m.alpha_rad_s2, |r| &r[i]);
                 for (j, s) in sens.iter().enumerate() {
                     if !d.used[i * n + j] {
                         continue;
@@ -243,11 +250,11 @@ pub fn accumulate_recording(
     }
 }
 
-/// The time derivatives of the specific force at the origin and of the angular acceleration at
-/// every sample, by a band-limited differentiator within each run of samples: the derivative of
-/// the sinc interpolant (taps `(-1)^(k+1) / k`), Hann-windowed over up to [`DIFFERENTIATOR_HALF`]
-/// neighbours each side (fewer near a run's ends) and normalised to be exact on a straight line;
-/// one-sided at a run's first and last sample, zero for a run of one.
+/// The time derivative at every sample of `x` (one vector per sample of `d`), by a band-limited
+/// differentiator within each run of samples: the derivative of the sinc interpolant (taps
+/// `(-1)^(k+1) / k`), Hann-windowed over up to [`DIFFERENTIATOR_HALF`] neighbours each side (fewer
+/// near a run's ends) and normalised to be exact on a straight line; one-sided at a run's first
+/// and last sample, zero for a run of one.
 ///
 /// Why not a central difference: hand-held rotation has power up to the Nyquist frequency of
 /// 62.5 Hz samples, where a central difference reads the slope short (`sin(w h) / (w h)`: 0.64
@@ -257,8 +264,8 @@ pub fn accumulate_recording(
 /// neighbours (flat to 0.4 of the sample rate) the same injection read 0.36 ms; with 4 (flat
 /// within 2% to 0.3, 0.77 at 0.4) 0.41 ms. The spread, about 10%, is the delay's systematic
 /// uncertainty on real motion.
-fn motion_rates(d: &DynamicData, motion: &[SampleMotion]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
-    let mut out = vec![(Vector3::zeros(), Vector3::zeros()); d.samples()];
+fn derivatives(d: &DynamicData, x: impl Fn(usize) -> Vector3<f64>) -> Vec<Vector3<f64>> {
+    let mut out = vec![Vector3::zeros(); d.samples()];
     for (s, e) in d.runs() {
         if e - s < 2 {
             continue;
@@ -271,20 +278,16 @@ fn motion_rates(d: &DynamicData, motion: &[SampleMotion]) -> Vec<(Vector3<f64>, 
             let half = DIFFERENTIATOR_HALF.min(i - s).min(e - 1 - i);
             if half == 0 {
                 let (a, b) = if i == s { (i, i + 1) } else { (i - 1, i) };
-                *slot = (
-                    (motion[b].f_m_s2 - motion[a].f_m_s2) / dt,
-                    (motion[b].alpha_rad_s2 - motion[a].alpha_rad_s2) / dt,
-                );
+                *slot = (x(b) - x(a)) / dt;
                 continue;
             }
             let taps = crate::signal::differentiator(half);
-            let (mut df, mut dalpha) = (Vector3::zeros(), Vector3::zeros());
+            let mut dx = Vector3::zeros();
             for (k, c) in taps.iter().enumerate() {
                 let k = k + 1;
-                df += (motion[i + k].f_m_s2 - motion[i - k].f_m_s2) * *c;
-                dalpha += (motion[i + k].alpha_rad_s2 - motion[i - k].alpha_rad_s2) * *c;
+                dx += (x(i + k) - x(i - k)) * *c;
             }
-            *slot = (df / dt, dalpha / dt);
+            *slot = dx / dt;
         }
     }
     out

@@ -408,6 +408,43 @@ fn effects_injected_into_real_recordings_are_named_on_their_accelerometer_and_re
     }
 }
 
+/// Item 5 for the delay `--use-gyro` sees, the one common to every package (gyroscope-free it is unseen):
+/// every accelerometer of real recordings 2 and 3 advanced by 1.2 ms with `gfcal inject`, against the
+/// gyroscopes. The criterion was written before the run (EXPECTATIONS.md, prediction 2 of "Censored samples
+/// un-censored"): every package's delay below 0.3 ms in magnitude, from 1.31-1.34 ms clean. It holds
+/// (0.23-0.26 ms), but the change, 1.06-1.08 ms, is 10% short of 1.2 ms, about 3 of the printed sigmas
+/// (4e-5 s): the printed sigma of a `--use-gyro` delay is statistical only and does not cover the delay's
+/// ~10% systematic on real motion (`recorded_blocks::derivatives`). Before the delay's column took the
+/// rate's derivative from the gyroscopes, the same advance moved it by 0.62 ms.
+#[test]
+fn a_common_advance_injected_into_real_recordings_moves_the_use_gyro_delay_with_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut injected = Vec::new();
+    for k in [2, 3] {
+        let mut from = real(k);
+        for j in 1..=24 {
+            let to = dir.path().join(format!("r{k}_{j}.parquet"));
+            inject_into(&from, &to, "sampling_delay", ["--accelerometer", &j.to_string()], "-1.2e-3");
+            from = to;
+        }
+        injected.push(from);
+    }
+    let array = mimu_array();
+    let read = |p: &std::path::Path| Recording::read(p, &array).unwrap();
+    let settings = CalibrateSettings { use_gyro: true, ..CalibrateSettings::default() };
+    let run = |a: &std::path::Path, b: &std::path::Path| {
+        diagnose_recordings(&read(a), &array, &[read(b)], &settings, 0.01).expect("diagnosed")
+    };
+    let (clean, with) = (run(&real(2), &real(3)), run(&injected[0], &injected[1]));
+    let (c, w) = (tried(&clean, "sampling_delay"), tried(&with, "sampling_delay"));
+    assert_eq!(w.unseen, 0);
+    for (m, (before, after)) in c.value.iter().zip(&w.value).enumerate() {
+        eprintln!("package {}: {before:.4e} s -> {after:.4e} s +- {:.1e}", m + 1, w.sigma[m]);
+        assert!(*before > 1e-3, "package {}: the clean lag {before}", m + 1);
+        assert!(after.abs() < 0.3e-3, "package {}: {after} s after a 1.2 ms advance", m + 1);
+    }
+}
+
 /// `--report` on recordings: the page has the gap after each addition, the effects, the rank tests, the
 /// sensing points and the residual figure (rate, input level, time), and the figure has data.
 #[test]
