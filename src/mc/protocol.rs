@@ -114,6 +114,7 @@ impl ProtocolSection {
                 dynamic_s,
                 rate_rms_rad_s: positive("protocol.rate_rms_rad_s", self.rate_rms_rad_s)?,
                 accel_rms_m_s2: positive("protocol.accel_rms_m_s2", self.accel_rms_m_s2)?,
+                motion_band_hz: crate::selfcal::simulate::MOTION_BAND_HZ,
                 sample_rate_hz: rate,
                 noise_sigma_m_s2: vec![noise_sigma_m_s2; n],
                 gyro_noise_sigma_rad_s: gyro,

@@ -28,6 +28,10 @@ pub struct Protocol {
     pub rate_rms_rad_s: f64,
     /// RMS inertial acceleration of the origin in the rotation phase.
     pub accel_rms_m_s2: f64,
+    /// The band of the rotation phase's motion: each axis of the rate and of the acceleration is
+    /// three sinusoids of random frequency in it, Hz ([`MOTION_BAND_HZ`] unless a study needs
+    /// faster motion: hand-held rotation has power up to the Nyquist frequency of 62.5 Hz samples).
+    pub motion_band_hz: [f64; 2],
     pub sample_rate_hz: f64,
     /// White noise of one sample, per accelerometer.
     pub noise_sigma_m_s2: Vec<f64>,
@@ -35,6 +39,9 @@ pub struct Protocol {
     pub gyro_noise_sigma_rad_s: f64,
     pub gravity_m_s2: f64,
 }
+
+/// The default band of the rotation phase's motion, Hz.
+pub const MOTION_BAND_HZ: [f64; 2] = [0.3, 2.0];
 
 /// A simulated recording with its truth.
 #[derive(Debug, Clone)]
@@ -109,21 +116,25 @@ fn random_attitude<R: Rng + ?Sized>(rng: &mut R) -> UnitQuaternion<f64> {
     UnitQuaternion::from_quaternion(Quaternion::new(g(), g(), g(), g()))
 }
 
-/// Smooth random signal per axis: three sinusoids of random frequency (0.3-2 Hz) and phase, with
-/// value and derivative.
+/// Smooth random signal per axis: three sinusoids of random frequency (in a band, Hz) and phase,
+/// with value and derivative.
 struct Smooth {
     terms: Vec<[(f64, f64, f64); 3]>,
 }
 
 impl Smooth {
-    fn new<R: Rng + ?Sized>(rms_total: f64, rng: &mut R) -> Self {
+    fn new<R: Rng + ?Sized>(rms_total: f64, band_hz: [f64; 2], rng: &mut R) -> Self {
         // Three axes with three sinusoids each: amplitude a gives RMS a / sqrt(2) per sinusoid.
         let a = rms_total / (9.0_f64 / 2.0).sqrt();
         let terms = (0..3)
             .map(|_| {
                 let mut t = [(0.0, 0.0, 0.0); 3];
                 for x in &mut t {
-                    *x = (a, 2.0 * std::f64::consts::PI * rng.random_range(0.3..2.0), rng.random_range(0.0..6.3));
+                    *x = (
+                        a,
+                        2.0 * std::f64::consts::PI * rng.random_range(band_hz[0]..band_hz[1]),
+                        rng.random_range(0.0..6.3),
+                    );
                 }
                 t
             })
@@ -171,8 +182,8 @@ pub fn simulate<R: Rng + ?Sized>(
     let dt = 1.0 / protocol.sample_rate_hz;
     let g_i = Vector3::new(0.0, 0.0, -protocol.gravity_m_s2);
     let attitudes: Vec<UnitQuaternion<f64>> = (0..protocol.poses).map(|_| random_attitude(rng)).collect();
-    let rate = Smooth::new(protocol.rate_rms_rad_s, rng);
-    let accel = Smooth::new(protocol.accel_rms_m_s2, rng);
+    let rate = Smooth::new(protocol.rate_rms_rad_s, protocol.motion_band_hz, rng);
+    let accel = Smooth::new(protocol.accel_rms_m_s2, protocol.motion_band_hz, rng);
     let ramp_s = 2.0;
     let mut t_s = Vec::new();
     let mut motions: Vec<RigidMotion> = Vec::new();

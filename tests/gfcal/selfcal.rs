@@ -32,6 +32,7 @@ pub fn protocol(n: usize) -> Protocol {
         dynamic_s: 30.0,
         rate_rms_rad_s: 20.0,
         accel_rms_m_s2: 20.0,
+        motion_band_hz: gfcal::selfcal::simulate::MOTION_BAND_HZ,
         sample_rate_hz: 62.5,
         noise_sigma_m_s2: vec![0.04; n],
         gyro_noise_sigma_rad_s: 0.01,
