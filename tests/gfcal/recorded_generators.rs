@@ -362,7 +362,7 @@ fn a_true_common_delay_reads_whole_on_fast_motion_and_an_injected_one_only_below
     let t = truth(&array);
     let settings = CalibrateSettings { use_gyro: true, ..CalibrateSettings::default() };
     let read = |a: &Recording, b: &Recording| {
-        let d = gfcal::discrepancy::recorded::diagnose_recordings(a, &array, &[b.clone()], &settings, 0.01)
+        let d = gfcal::discrepancy::recorded::diagnose_recordings(a, &array, std::slice::from_ref(b), &settings, 0.01)
             .expect("diagnosed");
         let r = tried(&d, "sampling_delay");
         (r.value.clone(), r.sigma.clone())
