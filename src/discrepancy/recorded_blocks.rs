@@ -191,8 +191,8 @@ pub fn accumulate_recording(
             let nlocal = if reference.is_some() { 6 } else { 9 };
             let df_all = derivatives(d, |i| state.motion[i].f_m_s2);
             let dalpha_all = derivatives(d, |i| state.motion[i].alpha_rad_s2);
-            // The rate's derivative in the centripetal term's: with `--use-gyro`, that of the
-            // gyroscopes' rate, which the term is formed from. (The fitted angular acceleration is
+            // The rate's derivative inside the centripetal term's derivative: with `--use-gyro`, the
+            // gyroscopes' rate's, the rate the term is formed from. (The fitted angular acceleration is
             // a free parameter of each sample, pulled by whatever the model leaves out: on the real
             // recordings a delay of the gyroscopes by 1.2 ms moved the delay read with it by
             // 0.33-0.51 ms, and with the gyroscopes' derivative by 1.19-1.38 ms.)
