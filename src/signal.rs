@@ -3,14 +3,9 @@
 //! to the Nyquist frequency, where linear interpolation and central differences are far from a
 //! delay and a derivative.
 
-/// `y` at index `i - d` (`d` in samples) by a Hann-windowed sinc over 16 neighbours each side,
-/// normalised to unit gain; the ends are held.
-pub fn fractional_delay(y: &[f64], i: usize, d: f64) -> f64 {
-    FractionalDelay::new(d).at(y, i)
-}
-
-/// The interpolator of [`fractional_delay`] for one delay, its weights computed once (a delay
-/// applied at many samples).
+/// A fractional delay: `y` at index `i - d` (`d` in samples) by a Hann-windowed sinc over 16
+/// neighbours each side, normalised to unit gain; the ends are held. The weights are computed once
+/// for one delay (a delay applied at many samples).
 pub struct FractionalDelay {
     /// Offset of the first neighbour from `i` (`floor(-d) - 15`).
     first: i64,
@@ -74,7 +69,7 @@ pub fn differentiator(half: usize) -> Vec<f64> {
 
 #[cfg(test)]
 mod tests {
-    use super::{differentiator, fractional_delay};
+    use super::{FractionalDelay, differentiator};
 
     fn derivative(y: &[f64], i: usize, taps: &[f64], dt: f64) -> f64 {
         taps.iter().enumerate().map(|(k, c)| c * (y[i + k + 1] - y[i - k - 1])).sum::<f64>() / dt
@@ -109,8 +104,8 @@ mod tests {
         let y: Vec<f64> = (0..400).map(|i| (w * i as f64 * dt).sin()).collect();
         for i in 50..350 {
             let want = (w * (i as f64 * dt - 4e-4)).sin();
-            assert!((fractional_delay(&y, i, 4e-4 / dt) - want).abs() < 2e-3, "{i}");
+            assert!((FractionalDelay::new(4e-4 / dt).at(&y, i) - want).abs() < 2e-3, "{i}");
         }
-        assert_eq!(fractional_delay(&y, 100, 0.0), y[100]);
+        assert_eq!(FractionalDelay::new(0.0).at(&y, 100), y[100]);
     }
 }

@@ -238,7 +238,7 @@ mod tests {
             let window_reads_rail = i + 15 >= 98 && i <= 102 + 16;
             assert_eq!(t.data[1][i] == 10.0, window_reads_rail, "row {i}: {}", t.data[1][i]);
         }
-        let clear = crate::signal::fractional_delay(&signal, 40, 0.25);
+        let clear = crate::signal::FractionalDelay::new(0.25).at(&signal, 40);
         assert_eq!(t.data[1][40], clear);
 
         array.gyroscopes = [Vector3::x(), Vector3::y(), Vector3::z()]
