@@ -424,7 +424,8 @@ fn effects_injected_into_real_recordings_are_named_on_their_accelerometer_and_re
 /// (0.23-0.26 ms), but the change, 1.06-1.08 ms, is 10% short of 1.2 ms, about 3 of the printed sigmas
 /// (4e-5 s). On simulated motion the estimator reads a true delay whole even at 0.3-25 Hz, while `inject`'s
 /// interpolated delay of aliased centripetal samples reads short there (0.17 of it at 25 Hz;
-/// `recorded_generators`): the shortfall is consistent with inject's limit on real motion, not proven to be it.
+/// `recorded_generators`). On these recordings, though, that limit explains only 1-4% of the 10% (measured from the
+/// gyroscopes' rate), and 5-8% is unexplained (EXPECTATIONS.md, seventh session).
 /// Before the delay's column took the rate's derivative from the gyroscopes, the same advance moved it by 0.62 ms.
 #[test]
 fn a_common_advance_injected_into_real_recordings_moves_the_use_gyro_delay_with_it() {
