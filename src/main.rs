@@ -1,7 +1,7 @@
 //! The `gfcal` command line: parses arguments, calls the library, maps errors to exit codes
 //! (0 success, 1 failure while running, 2 bad input).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
@@ -238,6 +238,31 @@ pub(crate) enum InputError {
     Other(String),
 }
 
+/// Refuses a command whose output would replace one of its inputs (`gfcal inject` with `--out` the
+/// recording it reads would destroy the recording), or whose two outputs are one file.
+fn refuse_overwriting(inputs: &[(&str, &Path)], outputs: &[(&str, Option<&Path>)]) -> Result<(), InputError> {
+    let outputs: Vec<(&str, &Path)> = outputs.iter().filter_map(|(flag, p)| p.map(|p| (*flag, p))).collect();
+    for (flag, out) in &outputs {
+        if let Some((what, input)) = inputs.iter().find(|(_, input)| gfcal::io::same_file(out, input)) {
+            return Err(InputError::Other(format!(
+                "{flag}: {} is the {what} {}, which gfcal reads; it never writes over its input: give another file",
+                out.display(),
+                input.display()
+            )));
+        }
+    }
+    for (i, (flag, out)) in outputs.iter().enumerate() {
+        let same = |(_, other): &&(&str, &Path)| other == out || gfcal::io::same_file(out, other);
+        if let Some((other_flag, _)) = outputs[i + 1..].iter().find(same) {
+            return Err(InputError::Other(format!(
+                "{flag} and {other_flag}: both name {}; give each its own file",
+                out.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
 const EXIT_FAILURE: u8 = 1;
 const EXIT_BAD_INPUT: u8 = 2;
 
@@ -274,7 +299,10 @@ fn message(e: &anyhow::Error) -> String {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Check { config } => check::run(&config),
-        Command::Drift { config, csv } => drift(&config, csv.as_deref()),
+        Command::Drift { config, csv } => {
+            refuse_overwriting(&[("config", &config)], &[("--csv", csv.as_deref())])?;
+            drift(&config, csv.as_deref())
+        }
         Command::Identify { config } => commands::identify(&config),
         Command::Run { config, out, resume, force, shard, threads, progress_interval_s } => {
             runs::run(&config, out, resume, force, shard.as_deref(), threads, progress_interval_s)
@@ -282,8 +310,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Summarize { dir } => runs::summarize(&dir),
         Command::Report { dir } => runs::report(&dir),
         Command::Sensitivity { dir, max_trials } => runs::sensitivity(&dir, max_trials),
-        Command::SimulateLog { config, out } => commands::simulate_log(&config, &out),
+        Command::SimulateLog { config, out } => {
+            refuse_overwriting(&[("config", &config)], &[("--out", Some(&out))])?;
+            commands::simulate_log(&config, &out)
+        }
         Command::Diagnose { log, array, held_out, json, report, alpha, reference_temp_c, use_gyro } => {
+            let mut inputs: Vec<(&str, &Path)> = vec![("log or recording", &log)];
+            inputs.extend(array.as_deref().map(|a| ("array file", a)));
+            inputs.extend(held_out.iter().map(|h| ("held-out recording", h.as_path())));
+            refuse_overwriting(&inputs, &[("--json", json.as_deref()), ("--report", report.as_deref())])?;
             if let Some(array_path) = array.as_deref()
                 && let Some(table) = commands::recording_table(&log)
             {
@@ -311,6 +346,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Design { config } => commands::design(&config),
         Command::Inject { recording, array, effect, accelerometer, element, value, out } => {
+            refuse_overwriting(&[("recording", &recording), ("array file", &array)], &[("--out", Some(&out))])?;
             commands::inject(&recording, &array, &effect, accelerometer, element.as_deref(), value, &out)
         }
         Command::Calibrate {
@@ -327,6 +363,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             trim_s,
             min_dynamic_s,
         } => {
+            let mut inputs: Vec<(&str, &Path)> = vec![("recording", &recording), ("array file", &array)];
+            inputs.extend(held_out.iter().map(|h| ("held-out recording", h.as_path())));
+            refuse_overwriting(&inputs, &[("--json", json.as_deref()), ("--report", report.as_deref())])?;
             let detector = gfcal::selfcal::segment::DetectorSettings {
                 window_s,
                 threshold: still_threshold,

@@ -20,6 +20,29 @@ pub fn host_name() -> String {
         .unwrap_or_else(|| "host".to_string())
 }
 
+/// Whether `a` and `b` name one existing file (by another spelling, a link, or `..` included).
+/// A path that does not exist is no file: false.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(x), Ok(y)) => x == y || same_inode(&x, &y),
+        _ => false,
+    }
+}
+
+#[cfg(unix)]
+fn same_inode(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => x.dev() == y.dev() && x.ino() == y.ino(),
+        _ => false,
+    }
+}
+
+#[cfg(not(unix))]
+fn same_inode(_: &Path, _: &Path) -> bool {
+    false
+}
+
 /// A temporary name beside `path`, unique across processes, hosts sharing the folder, and calls:
 /// `.NAME.tmp.HOST.PID.N`.
 pub fn temporary_path(path: &Path) -> std::io::Result<PathBuf> {

@@ -481,3 +481,77 @@ fn simulate_log_into_a_missing_folder_says_it_cannot_write() {
         assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
     }
 }
+
+/// No command writes over a file it reads, however the output is spelled (through `..` or a link), and
+/// no two outputs of one command are one file: exit code 2, the flag, both files named, and the input left
+/// byte for byte. (`gfcal inject --out` naming its own recording used to replace the recording.)
+#[test]
+fn an_output_over_an_input_is_refused_and_the_input_is_left_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::create_dir(d.join("sub")).unwrap();
+    let recording = d.join("r.csv");
+    std::fs::write(&recording, "t_s,acc1_x_m_s2\n0,1\n").unwrap();
+    let config = d.join("c.toml");
+    std::fs::write(&config, "not read\n").unwrap();
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(&recording, d.join("link.csv")).unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let via_dots = s(&d.join("sub").join("..").join("r.csv"));
+    let array = "configs/arrays/mimu4444_corners.toml";
+    let (r, c) = (s(&recording), s(&config));
+    let a = s(&d.join("a.json"));
+    let cases: Vec<(Vec<&str>, &str, &str)> = vec![
+        (
+            vec![
+                "inject",
+                &r,
+                "--array",
+                array,
+                "--effect",
+                "bias_turn_on",
+                "--accelerometer",
+                "1",
+                "--value",
+                "1",
+                "--out",
+                &via_dots,
+            ],
+            "--out",
+            &r,
+        ),
+        (vec!["calibrate", &r, "--array", array, "--json", &r], "--json", &r),
+        (vec!["calibrate", &r, "--array", array, "--json", &a, "--report", &a], "--json and --report", &a),
+        (vec!["diagnose", &c, "--array", array, "--held-out", &r, "--report", &via_dots], "--report", &r),
+        (vec!["simulate-log", &c, "--out", &c], "--out", &c),
+        (vec!["drift", &c, "--csv", &c], "--csv", &c),
+    ];
+    for (args, flag, named) in cases {
+        let o = gfcal(&args);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(flag) && err.contains(named), "{args:?}: names {flag} and {named}: {err}");
+    }
+    #[cfg(unix)]
+    {
+        let link = s(&d.join("link.csv"));
+        let o = gfcal(&[
+            "inject",
+            &r,
+            "--array",
+            array,
+            "--effect",
+            "bias_turn_on",
+            "--accelerometer",
+            "1",
+            "--value",
+            "1",
+            "--out",
+            &link,
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    }
+    assert_eq!(std::fs::read_to_string(&recording).unwrap(), "t_s,acc1_x_m_s2\n0,1\n");
+    assert_eq!(std::fs::read_to_string(&config).unwrap(), "not read\n");
+    assert!(!d.join("a.json").exists());
+}
