@@ -753,9 +753,13 @@ pub fn inject(
     gfcal::selfcal::recording::Recording::from_table(&table, &array).map_err(|e| InputError::Other(e.to_string()))?;
     let what = match target {
         Target::Accelerometer(j) => {
-            gfcal::discrepancy::inject::inject(&mut table, &array, effect, j, value)
+            let censored = gfcal::discrepancy::inject::inject(&mut table, &array, effect, j, value)
                 .map_err(|e| InputError::Other(e.to_string()))?;
-            format!("accelerometer {j} (column {})", array.accelerometer_columns[j - 1])
+            let rows = table.rows();
+            format!(
+                "accelerometer {j} (column {}); {censored} of its {rows} outputs put at the rail by the effect (left out as clipped)",
+                array.accelerometer_columns[j - 1]
+            )
         }
         Target::Gyroscopes(element) => {
             gfcal::discrepancy::inject::inject_gyro(&mut table, &array, element, value)

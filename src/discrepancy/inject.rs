@@ -65,6 +65,10 @@ pub enum InjectError {
         "--effect cross_coupling: accelerometer {j} of {array} has no axis in its package (same position) along its first cross direction, which reads the force it couples to"
     )]
     NoPartner { j: usize, array: String },
+    #[error(
+        "--value: a delay of {value} s is not shorter than the recording ({span_s} s): every output would be a held end value"
+    )]
+    DelayTooLong { value: f64, span_s: f64 },
     #[error("--element: unknown element `{0}` of the gyroscopes' matrix (known: {known})", known = GYRO_ELEMENTS.join(", "))]
     Element(String),
     #[error("--effect gyro_scale_misalignment: the array file {array} lists no gyroscopes spanning three axes")]
@@ -73,14 +77,16 @@ pub enum InjectError {
     MissingGyroColumn { path: std::path::PathBuf, column: String, array: String },
 }
 
-/// Adds `effect` of size `value` to accelerometer `accelerometer` (1-based) of `table`.
+/// Adds `effect` of size `value` to accelerometer `accelerometer` (1-based) of `table`; returns how
+/// many of its outputs the effect put at the rail (pushed past the range, or computed from a
+/// railed one), which a diagnosis then leaves out as clipped.
 pub fn inject(
     table: &mut Table,
     array: &RecordingArray,
     effect: &str,
     accelerometer: usize,
     value: f64,
-) -> Result<(), InjectError> {
+) -> Result<usize, InjectError> {
     if !INJECTABLE.contains(&effect) {
         return Err(InjectError::UnknownEffect(effect.to_string()));
     }
@@ -127,7 +133,11 @@ pub fn inject(
         (Some(a), Some(b)) if t.len() > 1 => (b - a) / (t.len() - 1) as f64,
         _ => 1.0,
     };
+    if effect == "sampling_delay" && value.abs() >= mean_dt * (t.len().max(2) - 1) as f64 {
+        return Err(InjectError::DelayTooLong { value, span_s: mean_dt * (t.len().max(1) - 1) as f64 });
+    }
     let delay = crate::signal::FractionalDelay::new(value / mean_dt);
+    let mut censored = 0;
     let railed = |y: &[f64], a: usize, b: usize| y[a..=b].iter().any(|v| v.abs() >= range);
     for (i, v) in s.iter_mut().enumerate() {
         let x = original[i];
@@ -147,9 +157,14 @@ pub fn inject(
                 (delay.at(&original, i), railed(&original, a, b))
             }
         };
-        *v = if from_railed || new.abs() >= range { range.copysign(new) } else { new };
+        *v = if from_railed || new.abs() >= range {
+            censored += 1;
+            range.copysign(new)
+        } else {
+            new
+        };
     }
-    Ok(())
+    Ok(censored)
 }
 
 /// The elements of the gyroscopes' scale and misalignment matrix `G`: row (the array axis the
@@ -232,14 +247,25 @@ mod tests {
             assert!(t.data[1][20] != signal[20] && t.data[1][20].abs() < 10.0, "{effect}: row 20 changed, in range");
         }
         let mut t = table(&signal);
-        inject(&mut t, &array, "sampling_delay", 1, 4e-3).unwrap();
-        // A quarter-sample delay reads rows i - 16 to i + 15.
+        let censored = inject(&mut t, &array, "sampling_delay", 1, 4e-3).unwrap();
+        // A quarter-sample delay reads rows i - 16 to i + 15: rows 83-118, less the five railed before.
         for i in 70..=130 {
             let window_reads_rail = i + 15 >= 98 && i <= 102 + 16;
             assert_eq!(t.data[1][i] == 10.0, window_reads_rail, "row {i}: {}", t.data[1][i]);
         }
+        assert_eq!(censored, (118 - 83 + 1) - 5);
         let clear = crate::signal::FractionalDelay::new(0.25).at(&signal, 40);
         assert_eq!(t.data[1][40], clear);
+        // Pushed past the range by +2: every output from 8 up, none of the railed ones again.
+        let mut t = table(&signal);
+        let pushed = signal.iter().filter(|&&v| (8.0..10.0).contains(&v)).count();
+        assert!(pushed > 10);
+        assert_eq!(inject(&mut t, &array, "bias_turn_on", 1, 2.0).unwrap(), pushed);
+        // A delay as long as the recording holds an end value everywhere: refused.
+        let mut t = table(&signal);
+        let span_s = 199.0 * 0.016;
+        assert!(matches!(inject(&mut t, &array, "sampling_delay", 1, -span_s), Err(InjectError::DelayTooLong { .. })));
+        assert!(inject(&mut t, &array, "sampling_delay", 1, 0.9 * span_s).is_ok());
 
         array.gyroscopes = [Vector3::x(), Vector3::y(), Vector3::z()]
             .iter()

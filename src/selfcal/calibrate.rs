@@ -75,9 +75,29 @@ pub struct Calibration {
     pub use_gyro: bool,
 }
 
-/// The static means and pooled per-sample scatter of every interval.
-pub fn static_data(rec: &Recording, intervals: &[Interval]) -> StaticData {
+/// The static means and pooled per-sample scatter of every interval. An output at or beyond its
+/// range inside a static interval is refused (the problem, in words): a board at rest cannot
+/// saturate an accelerometer, so the range is wrong or the sample is a glitch, and a railed value
+/// in a mean would be read as measured.
+pub fn static_data(rec: &Recording, intervals: &[Interval]) -> Result<StaticData, String> {
     let n = rec.accelerometers();
+    for (p, iv) in intervals.iter().enumerate() {
+        for i in iv.start..iv.end {
+            if let Some(j) = (0..n).find(|&j| rec.is_clipped(i, j)) {
+                return Err(format!(
+                    "data row {} (t = {:.2} s): accelerometer {}'s output {} is at or beyond its range inside static interval {} ({:.2}-{:.2} s); a board at rest cannot saturate an accelerometer, so the array file's `accelerometer[{}].range_m_s2` is below what the part reads, or the sample is a glitch",
+                    i + 1,
+                    rec.t_s[i],
+                    j + 1,
+                    rec.outputs[(i, j)],
+                    p + 1,
+                    rec.t_s[iv.start],
+                    rec.t_s[iv.end - 1],
+                    j
+                ));
+            }
+        }
+    }
     let mut means = DMatrix::zeros(intervals.len(), n);
     let mut counts = Vec::with_capacity(intervals.len());
     let mut ss = vec![0.0; n];
@@ -94,7 +114,7 @@ pub fn static_data(rec: &Recording, intervals: &[Interval]) -> StaticData {
         }
     }
     let sigma = (0..n).map(|j| (ss[j] / dof[j].max(1.0)).sqrt().max(1e-12)).collect();
-    StaticData { means, counts, sigma }
+    Ok(StaticData { means, counts, sigma })
 }
 
 /// Calibrates a recording (see the module docs).
@@ -111,7 +131,8 @@ pub fn calibrate(
         )));
     }
     let seg = segment(rec, &settings.detector).map_err(|e| bad(e.to_string()))?;
-    let stat = static_data(rec, &seg.static_intervals);
+    let stat = static_data(rec, &seg.static_intervals)
+        .map_err(|problem| bad(format!("{problem} (array file {})", array.path.display())))?;
     let gyro_bias_rad_s = gyro_bias(rec, &seg);
     let prepared = prepare_dynamic(rec, &seg, settings.use_gyro, gyro_bias_rad_s);
     let dynamic = prepared.data.as_ref();

@@ -105,7 +105,8 @@ pub fn predict_with_state(
     use_gyro: bool,
 ) -> Result<(HeldOut, HeldOutState), super::recording::RecordingError> {
     let seg = segment(rec, detector)?;
-    let stat = static_data(rec, &seg.static_intervals);
+    let stat = static_data(rec, &seg.static_intervals)
+        .map_err(|problem| super::recording::RecordingError::Unusable { path: rec.path.clone(), problem })?;
     let n = array.len();
     let mut params = params.clone();
     let poses = stat.means.nrows();

@@ -193,3 +193,64 @@ fn a_held_out_recording_of_another_array_is_refused_naming_both_files() {
         assert!(!json.exists(), "{command}: nothing written");
     }
 }
+
+/// An array file whose range is below what a board at rest reads (accelerometer 1 at 5 m/s^2: its static
+/// means near +-9.8 would be means of clipped outputs, read as measured): refused at the first such output,
+/// naming the recording, the row, the static interval, the key and the array file, before any fit; the same
+/// for a held-out recording in `diagnose` (pushed past its rail by `inject`). The six recordings with the shipped array file have none.
+#[test]
+fn an_output_at_its_range_inside_a_static_interval_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(ARRAY)).unwrap();
+    let low = dir.path().join("low.toml");
+    std::fs::write(&low, text.replacen("range_m_s2 = 156.9", "range_m_s2 = 5.0", 1)).unwrap();
+    let rec = super::recorded::real(2);
+    let json = dir.path().join("out.json");
+    let o = gfcal(&[
+        "calibrate",
+        rec.to_str().unwrap(),
+        "--array",
+        low.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    for w in
+        [rec.to_str().unwrap(), "data row", "static interval", "`accelerometer[0].range_m_s2`", low.to_str().unwrap()]
+    {
+        assert!(err.contains(w), "mentions `{w}`: {err}");
+    }
+    assert!(!json.exists());
+    // A held-out recording whose accelerometer 1 is pushed past its rail (by 200 m/s^2) everywhere but
+    // at its most negative readings, fitted recording 3 with the shipped array file.
+    let pushed = dir.path().join("pushed.parquet");
+    let o = gfcal(&[
+        "inject",
+        rec.to_str().unwrap(),
+        "--array",
+        ARRAY,
+        "--effect",
+        "bias_turn_on",
+        "--accelerometer",
+        "1",
+        "--value",
+        "200",
+        "--out",
+        pushed.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = gfcal(&[
+        "diagnose",
+        super::recorded::real(3).to_str().unwrap(),
+        "--array",
+        ARRAY,
+        "--held-out",
+        pushed.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    for w in [pushed.to_str().unwrap(), "static interval", "`accelerometer[0].range_m_s2`"] {
+        assert!(err.contains(w), "mentions `{w}`: {err}");
+    }
+}

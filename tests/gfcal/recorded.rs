@@ -113,7 +113,7 @@ fn recordings_with_the_same_biases_name_no_turn_on_bias() {
     }
 }
 
-fn real(k: usize) -> PathBuf {
+pub fn real(k: usize) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!("../shared/data/mimu4444/recording_{k}.parquet"))
 }
 
