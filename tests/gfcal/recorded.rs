@@ -426,22 +426,35 @@ fn effects_injected_into_real_recordings_are_named_on_their_accelerometer_and_re
 /// the delay's column took a shortened or one-sided derivative. With the column on the rows that hold the whole
 /// differentiator (`recorded_blocks::whole_differentiator`) every package moves by 1.184-1.193 ms +- 0.065: the
 /// issue's criterion, the injected magnitude within its sigma on top of the clean pair's value, now asserted.
+/// After the advance the delay is rightly no longer named (0.13-0.19 ms, joint p 0.06); a 1.2 ms *delay* of every
+/// accelerometer instead (about 2.5 ms in all; EXPECTATIONS.md, "The common delay named when injected") is named on
+/// every package and recovered within its sigma as well.
 /// Before the delay's column took the rate's derivative from the gyroscopes, the same advance moved it by 0.62 ms.
 #[test]
 fn a_common_advance_injected_into_real_recordings_moves_the_use_gyro_delay_with_it() {
     let numbers: Vec<String> = (1..=24).map(|j| j.to_string()).collect();
-    let steps: Vec<Step> =
-        numbers.iter().map(|j| ("sampling_delay", ["--accelerometer", j.as_str()], "-1.2e-3")).collect();
-    let (clean, with) = injected_pair(&steps, &CalibrateSettings { use_gyro: true, ..CalibrateSettings::default() });
-    let (c, w) = (tried(&clean, "sampling_delay"), tried(&with, "sampling_delay"));
-    assert_eq!(w.unseen, 0);
-    for (m, (before, after)) in c.value.iter().zip(&w.value).enumerate() {
-        eprintln!("package {}: {before:.4e} s -> {after:.4e} s +- {:.1e}", m + 1, w.sigma[m]);
-        assert!(*before > 1e-3, "package {}: the clean lag {before}", m + 1);
-        assert!(after.abs() < 0.3e-3, "package {}: {after} s after a 1.2 ms advance", m + 1);
-        // The criterion: the injected magnitude within its sigma, on top of the clean pair's value.
-        let moved = before - after;
-        assert!((moved - 1.2e-3).abs() < w.sigma[m], "package {}: moved {moved} s +- {}", m + 1, w.sigma[m]);
+    let settings = CalibrateSettings { use_gyro: true, ..CalibrateSettings::default() };
+    for value in ["-1.2e-3", "1.2e-3"] {
+        let steps: Vec<Step> =
+            numbers.iter().map(|j| ("sampling_delay", ["--accelerometer", j.as_str()], value)).collect();
+        let (clean, with) = injected_pair(&steps, &settings);
+        let (c, w) = (tried(&clean, "sampling_delay"), tried(&with, "sampling_delay"));
+        assert_eq!(w.unseen, 0);
+        let named: Vec<Option<usize>> =
+            with.findings.iter().filter(|f| f.name == "sampling_delay").map(|f| f.package).collect();
+        for (m, (before, after)) in c.value.iter().zip(&w.value).enumerate() {
+            eprintln!("{value} s: package {}: {before:.4e} s -> {after:.4e} s +- {:.1e}", m + 1, w.sigma[m]);
+            assert!(*before > 1e-3, "package {}: the clean lag {before}", m + 1);
+            if value.starts_with('-') {
+                assert!(after.abs() < 0.3e-3, "package {}: {after} s after a 1.2 ms advance", m + 1);
+            } else {
+                assert!(named.contains(&Some(m)), "package {} named after a 1.2 ms delay: {named:?}", m + 1);
+            }
+            // The criterion: the injected magnitude within its sigma, on top of the clean pair's value.
+            let moved = after - before;
+            let want = if value.starts_with('-') { -1.2e-3 } else { 1.2e-3 };
+            assert!((moved - want).abs() < w.sigma[m], "package {}: moved {moved} s +- {}", m + 1, w.sigma[m]);
+        }
     }
 }
 
