@@ -225,21 +225,7 @@ fn an_output_at_its_range_inside_a_static_interval_is_refused() {
     // A held-out recording whose accelerometer 1 is pushed past its rail (by 200 m/s^2) everywhere but
     // at its most negative readings, fitted recording 3 with the shipped array file.
     let pushed = dir.path().join("pushed.parquet");
-    let o = gfcal(&[
-        "inject",
-        rec.to_str().unwrap(),
-        "--array",
-        ARRAY,
-        "--effect",
-        "bias_turn_on",
-        "--accelerometer",
-        "1",
-        "--value",
-        "200",
-        "--out",
-        pushed.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    super::recorded::inject_into(&rec, &pushed, "bias_turn_on", ["--accelerometer", "1"], "200");
     let o = gfcal(&[
         "diagnose",
         super::recorded::real(3).to_str().unwrap(),

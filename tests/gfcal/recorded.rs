@@ -313,7 +313,7 @@ pub fn named_on(d: &RecordedDiagnosis, name: &str) -> Vec<usize> {
 }
 
 /// `gfcal inject` from `from` to `to`; `target` is `["--accelerometer", J]` or `["--element", AB]`.
-fn inject_into(from: &std::path::Path, to: &std::path::Path, effect: &str, target: [&str; 2], value: &str) {
+pub fn inject_into(from: &std::path::Path, to: &std::path::Path, effect: &str, target: [&str; 2], value: &str) {
     let o = gfcal(&[
         "inject",
         from.to_str().unwrap(),
