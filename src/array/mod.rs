@@ -5,10 +5,8 @@
 //! angular acceleration `alpha` and the origin's acceleration `a_o` whose N x 6 matrix has rows
 //! `[(r_j x theta_j)^T, theta_j^T]` (see [`mechanization`]).
 
-pub mod folded;
 pub mod geometry;
 pub mod mechanization;
 
-pub use folded::FoldedSolve;
 pub use geometry::{Accelerometer, Array, ArrayError};
 pub use mechanization::{Mechanization, RankError, RigidAccel};

@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use super::claim::{self, Entry, RunLock};
 use super::config::McConfig;
 use super::summary::{Summarizer, Summary};
-use super::trial::{Prepared, TrialRecord, run_trial};
+use super::trial::{Prepared, TrialRecord, run_trials};
 use crate::io::parquet::{ParquetIoError, is_whole_part, parameters_batch, trials_batch, write_part};
 
 /// Receives progress; must not block (called from worker threads).
@@ -274,6 +274,22 @@ struct Computed {
 
 /// Writes a computed part (parameters first, then trials, each atomically), gives up its claim,
 /// and adds the part to the summary being built, if any.
+/// `range`'s trials in runs that navigate in lockstep: consecutive trials of one cell, as many
+/// as fill the navigation's lanes with their compensations (two trials of two compensations).
+fn lockstep_chunks(cfg: &McConfig, range: std::ops::Range<u64>) -> Vec<std::ops::Range<u64>> {
+    let mut chunks = Vec::new();
+    let mut start = range.start;
+    while start < range.end {
+        let cell = start / cfg.trials_per_cell;
+        let compensations = cfg.cells[cell as usize].navigation.compensations.len().max(1);
+        let per_chunk = (crate::nav::LANES / compensations).max(1) as u64;
+        let end = (start + per_chunk).min(range.end).min((cell + 1) * cfg.trials_per_cell);
+        chunks.push(start..end);
+        start = end;
+    }
+    chunks
+}
+
 fn write_computed(
     cfg: &McConfig,
     out: &Path,
@@ -361,13 +377,13 @@ pub fn run(
         let (records, written) = std::thread::scope(|scope| {
             let writer = pending.take().map(|c| scope.spawn(|| write_computed(cfg, &opts.out, c, &summarizer)));
             let records: Vec<TrialRecord> = pool.install(|| {
-                range
-                    .clone()
+                lockstep_chunks(cfg, range.clone())
                     .into_par_iter()
-                    .map(|t| {
-                        let cell = (t / cfg.trials_per_cell) as usize;
-                        let r = run_trial(&cfg.cells[cell], &prepared[cell], cfg.seed, t);
-                        observer.advance(1);
+                    .flat_map_iter(|chunk| {
+                        let cell = (chunk.start / cfg.trials_per_cell) as usize;
+                        let n = chunk.end - chunk.start;
+                        let r = run_trials(&cfg.cells[cell], &prepared[cell], cfg.seed, chunk);
+                        observer.advance(n);
                         r
                     })
                     .collect()

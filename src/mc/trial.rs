@@ -15,7 +15,8 @@ use crate::calib::measure::simulate;
 use crate::calib::pose::{self, marginal_fisher, tilted_schedule};
 use crate::calib::{Estimate, paper};
 use crate::config::calibration::Estimator;
-use crate::nav::{MotionGrid, PlanStep, navigate_together};
+use crate::nav::navigator::StepFill;
+use crate::nav::{MotionGrid, NavGroup, PlanStep, navigate_groups};
 use crate::rng::trial_rng;
 use crate::sensor::noise::NoiseGenerator;
 use crate::sensor::{ArrayParams, Compensator, SimulatedArray};
@@ -119,6 +120,29 @@ pub fn crb_sigma(cell: &Cell, x: &DVector<f64>, density_m_s2_per_sqrt_hz: f64) -
 
 /// Runs trial `trial` of `cell` under master seed `seed`.
 pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> TrialRecord {
+    run_trials(cell, prepared, seed, trial..trial + 1).pop().expect("one trial")
+}
+
+/// Runs trials `trials` of `cell` under master seed `seed`: each is calibrated on its own, then
+/// they navigate in lockstep (`nav::navigate_groups`, their compensations side by side in packed
+/// lanes). Each record is the one [`run_trial`] gives.
+pub fn run_trials(cell: &Cell, prepared: &Prepared, seed: u64, trials: std::ops::Range<u64>) -> Vec<TrialRecord> {
+    let calibrated: Vec<Calibrated> = trials.map(|t| calibrate_trial(cell, prepared, seed, t)).collect();
+    navigate_and_record(cell, prepared, seed, &calibrated)
+}
+
+/// A trial calibrated, not yet navigated.
+struct Calibrated {
+    stream: u64,
+    trial: u64,
+    x_true: DVector<f64>,
+    truth: ArrayParams,
+    estimate: Result<Estimate, String>,
+    crb_sigma: Vec<f64>,
+}
+
+/// Draws trial `trial`'s error set, simulates its calibration and estimates.
+fn calibrate_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Calibrated {
     let layout = &cell.layout;
     let g = cell.calibration.gravity_m_s2;
     // A Saltelli design shares noise between a block's A and AB rows (see `noise_stream`).
@@ -131,8 +155,8 @@ pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Tri
     if let Some(protocol) = &cell.protocol {
         let x_true = super::protocol::truth_in_gauge(protocol, &x_true);
         let truth = layout.unpack(&x_true);
-        let (estimate, crb) = super::protocol::calibrate_one(protocol, layout, &x_true, &mut rng);
-        return record(cell, prepared, seed, stream, trial, &x_true, &truth, estimate, crb);
+        let (estimate, crb_sigma) = super::protocol::calibrate_one(protocol, layout, &x_true, &mut rng);
+        return Calibrated { stream, trial, x_true, truth, estimate, crb_sigma };
     }
     let truth = layout.unpack(&x_true);
     let pose = &cell.calibration.pose;
@@ -165,71 +189,94 @@ pub fn run_trial(cell: &Cell, prepared: &Prepared, seed: u64, trial: u64) -> Tri
         }
         .map_err(|e: CalibError| e.to_string()),
     };
-    let crb = crb_sigma(cell, &x_true, prepared.white_density_m_s2_per_sqrt_hz);
-    record(cell, prepared, seed, stream, trial, &x_true, &truth, estimate, crb)
+    let crb_sigma = crb_sigma(cell, &x_true, prepared.white_density_m_s2_per_sqrt_hz);
+    Calibrated { stream, trial, x_true, truth, estimate, crb_sigma }
 }
 
-/// Navigates a trial's compensations and assembles its record.
-#[allow(clippy::too_many_arguments)]
-fn record(
-    cell: &Cell,
-    prepared: &Prepared,
-    seed: u64,
-    stream: u64,
-    trial: u64,
-    x_true: &DVector<f64>,
-    truth: &ArrayParams,
-    estimate: Result<Estimate, String>,
-    crb_sigma: Vec<f64>,
-) -> TrialRecord {
-    let p = cell.layout.len();
+/// Navigates calibrated trials of `cell` in lockstep and assembles their records.
+fn navigate_and_record(cell: &Cell, prepared: &Prepared, seed: u64, calibrated: &[Calibrated]) -> Vec<TrialRecord> {
     let g = cell.calibration.gravity_m_s2;
-    let nan = vec![f64::NAN; p];
-    let (estimated, estimated_sigma, status) = match &estimate {
-        Ok(e) => (e.x.iter().copied().collect(), e.sigma().iter().copied().collect(), Some(e)),
-        Err(_) => (nan.clone(), nan.clone(), None),
-    };
     let nav = &cell.navigation;
     let gravity_i = Vector3::new(0.0, 0.0, -g);
-    // Every compensation navigates the same outputs (the same noise stream) along the same steps:
-    // they go in lockstep over one evaluation of the outputs, on the run's precomputed motion.
-    let compensators: Vec<Option<Compensator>> = nav
-        .compensations
+    let grid = &prepared.grid;
+    // Every compensation of a trial navigates the same outputs (the same noise stream) along the
+    // same steps: they go in lockstep over one evaluation of the outputs, on the run's precomputed
+    // motion, and with the other trials' compensations in the other lanes.
+    let compensators: Vec<Vec<Option<Compensator>>> = calibrated
         .iter()
-        .map(|comp| {
-            let params = match comp {
-                Compensation::Nominal => Some(&prepared.nominal),
-                Compensation::True => Some(truth),
-                Compensation::Estimated => status.filter(|e| e.status.converged).map(|e| &e.params),
-            };
-            params.and_then(|params| Compensator::new(&cell.array, params).ok())
+        .map(|c| {
+            let converged = c.estimate.as_ref().ok().filter(|e| e.status.converged);
+            nav.compensations
+                .iter()
+                .map(|comp| {
+                    let params = match comp {
+                        Compensation::Nominal => Some(&prepared.nominal),
+                        Compensation::True => Some(&c.truth),
+                        Compensation::Estimated => converged.map(|e| &e.params),
+                    };
+                    params.and_then(|params| Compensator::new(&cell.array, params).ok())
+                })
+                .collect()
         })
         .collect();
-    let grid = &prepared.grid;
-    let mut source = SimulatedArray::new(&cell.array, truth, &nav.trajectory, gravity_i);
-    if nav.noise && !cell.noise.is_zero() {
-        let mut nav_rng = trial_rng(seed ^ NAV_SALT, stream);
-        let generator = NoiseGenerator::new(&cell.noise, cell.array.len(), 1.0 / nav.step_s, &mut nav_rng);
-        source = source.with_noise(generator, nav_rng, cell.noise.quantization_m_s2);
-    }
-    let mut fill = |i: usize, step: &PlanStep, outputs: &mut [Vec<f64>; 3]| {
-        source.fill_step(&grid.motions[i], step.t_s, step.h_s, outputs);
-    };
-    let active: Vec<&Compensator> = compensators.iter().flatten().collect();
-    let mut navigated =
-        navigate_together(&grid.plan, &grid.initial, &grid.record_truths, &mut fill, &active, &gravity_i).into_iter();
-    let mut drift = Vec::with_capacity(nav.compensations.len() * nav.horizons_s.len() * DRIFT_METRICS.len());
-    for c in &compensators {
-        match c.as_ref().and_then(|_| navigated.next()) {
-            Some(samples) => {
-                for d in samples {
-                    drift.extend([d.rate_err_rad_s, d.attitude_err_rad, d.velocity_err_m_s, d.position_err_m]);
+    let mut sources: Vec<_> = calibrated
+        .iter()
+        .map(|c| {
+            let mut source = SimulatedArray::new(&cell.array, &c.truth, &nav.trajectory, gravity_i);
+            if nav.noise && !cell.noise.is_zero() {
+                let mut nav_rng = trial_rng(seed ^ NAV_SALT, c.stream);
+                let generator = NoiseGenerator::new(&cell.noise, cell.array.len(), 1.0 / nav.step_s, &mut nav_rng);
+                source = source.with_noise(generator, nav_rng, cell.noise.quantization_m_s2);
+            }
+            source
+        })
+        .collect();
+    let mut fills: Vec<Box<StepFill<'_>>> = sources
+        .iter_mut()
+        .map(|source| {
+            Box::new(move |i: usize, step: &PlanStep, outputs: &mut [Vec<f64>; 3]| {
+                source.fill_step(&grid.motions[i], step.t_s, step.h_s, outputs);
+            }) as Box<StepFill<'_>>
+        })
+        .collect();
+    let mut groups: Vec<NavGroup<'_, '_>> = fills
+        .iter_mut()
+        .zip(&compensators)
+        .map(|(fill, comps)| NavGroup { fill: fill.as_mut(), compensators: comps.iter().flatten().collect() })
+        .collect();
+    let navigated = navigate_groups(&grid.plan, &grid.initial, &grid.record_truths, &mut groups, &gravity_i);
+    calibrated
+        .iter()
+        .zip(&compensators)
+        .zip(navigated)
+        .map(|((c, comps), navigated)| {
+            let mut navigated = navigated.into_iter();
+            let mut drift = Vec::with_capacity(nav.compensations.len() * nav.horizons_s.len() * DRIFT_METRICS.len());
+            for comp in comps {
+                match comp.as_ref().and_then(|_| navigated.next()) {
+                    Some(samples) => {
+                        for d in samples {
+                            drift.extend([d.rate_err_rad_s, d.attitude_err_rad, d.velocity_err_m_s, d.position_err_m]);
+                        }
+                    }
+                    None => drift.extend(std::iter::repeat_n(f64::NAN, nav.horizons_s.len() * DRIFT_METRICS.len())),
                 }
             }
-            None => drift.extend(std::iter::repeat_n(f64::NAN, nav.horizons_s.len() * DRIFT_METRICS.len())),
-        }
-    }
-    let (converged, iterations, cost, condition_number, residual_sigma_m_s2, message) = match &estimate {
+            record(cell, c, drift)
+        })
+        .collect()
+}
+
+/// A trial's record from its calibration and its drift.
+fn record(cell: &Cell, c: &Calibrated, drift: Vec<f64>) -> TrialRecord {
+    let p = cell.layout.len();
+    let nan = vec![f64::NAN; p];
+    let Calibrated { trial, x_true, estimate, crb_sigma, .. } = c;
+    let (estimated, estimated_sigma) = match estimate {
+        Ok(e) => (e.x.iter().copied().collect(), e.sigma().iter().copied().collect()),
+        Err(_) => (nan.clone(), nan),
+    };
+    let (converged, iterations, cost, condition_number, residual_sigma_m_s2, message) = match estimate {
         Ok(e) => (
             e.status.converged,
             e.status.iterations as u32,
@@ -241,7 +288,7 @@ fn record(
         Err(why) => (false, 0, f64::NAN, f64::NAN, f64::NAN, why.clone()),
     };
     TrialRecord {
-        trial,
+        trial: *trial,
         cell: cell.index as u32,
         converged,
         iterations,
@@ -252,7 +299,7 @@ fn record(
         drift,
         truth: x_true.iter().copied().collect(),
         estimated,
-        crb_sigma,
+        crb_sigma: crb_sigma.clone(),
         estimated_sigma,
     }
 }

@@ -8,13 +8,14 @@
 
 pub mod drift;
 pub mod grid;
+pub mod lanes;
 pub mod navigator;
-pub mod pair;
 pub mod plan;
 pub mod trajectory;
 
 pub use drift::{DriftRow, DriftSample, DriftSetup, drift_study};
 pub use grid::MotionGrid;
-pub use navigator::{NavState, navigate, navigate_together};
+pub use lanes::LANES;
+pub use navigator::{NavGroup, NavState, navigate, navigate_groups, navigate_together};
 pub use plan::{Plan, PlanStep};
 pub use trajectory::{InitialState, Segment, Trajectory, TruthState};

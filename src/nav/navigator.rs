@@ -3,7 +3,7 @@
 use nalgebra::{UnitQuaternion, Vector3};
 
 use super::drift::DriftSample;
-use super::pair::{L, PairSolve, PairState};
+use super::lanes::{L, LANES, LaneSolve, LaneState};
 use super::plan::{Plan, PlanStep};
 use super::trajectory::{InitialState, Trajectory, TruthState};
 use crate::sensor::params::Compensator;
@@ -74,16 +74,78 @@ pub fn navigate_together(
     compensators: &[&Compensator],
     gravity_i_m_s2: &Vector3<f64>,
 ) -> Vec<Vec<DriftSample>> {
-    let n = compensators.first().map_or(0, |c| c.mechanization().len());
-    let mut outputs = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+    let mut groups = [NavGroup { fill, compensators: compensators.to_vec() }];
+    navigate_groups(plan, initial, record_truths, &mut groups, gravity_i_m_s2).pop().unwrap_or_default()
+}
+
+/// One source of outputs (a trial's array) and the compensations that navigate it.
+pub struct NavGroup<'f, 'c> {
+    pub fill: &'f mut StepFill<'c>,
+    pub compensators: Vec<&'f Compensator>,
+}
+
+/// [`navigate_together`] for several groups at once (several trials along the same plan, each
+/// with its own outputs): every compensation of every group goes in lockstep, [`LANES`] to a
+/// packed number. Returns per group, per compensation, the drift at each record. Each
+/// compensation's numbers are those it gets navigated alone.
+pub fn navigate_groups(
+    plan: &Plan,
+    initial: &TruthState,
+    record_truths: &[TruthState],
+    groups: &mut [NavGroup<'_, '_>],
+    gravity_i_m_s2: &Vector3<f64>,
+) -> Vec<Vec<Vec<DriftSample>>> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the processor has AVX, the only feature the copy is compiled for.
+        return unsafe { navigate_groups_avx(plan, initial, record_truths, groups, gravity_i_m_s2) };
+    }
+    navigate_groups_any(plan, initial, record_truths, groups, gravity_i_m_s2)
+}
+
+/// [`navigate_groups_any`] compiled for AVX: the four lanes in one instruction. Same
+/// instructions otherwise (no fused multiply-add), so the same bits.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn navigate_groups_avx(
+    plan: &Plan,
+    initial: &TruthState,
+    record_truths: &[TruthState],
+    groups: &mut [NavGroup<'_, '_>],
+    gravity_i_m_s2: &Vector3<f64>,
+) -> Vec<Vec<Vec<DriftSample>>> {
+    navigate_groups_any(plan, initial, record_truths, groups, gravity_i_m_s2)
+}
+
+#[inline(always)]
+fn navigate_groups_any(
+    plan: &Plan,
+    initial: &TruthState,
+    record_truths: &[TruthState],
+    groups: &mut [NavGroup<'_, '_>],
+    gravity_i_m_s2: &Vector3<f64>,
+) -> Vec<Vec<Vec<DriftSample>>> {
+    // Every compensation, with its group.
+    let compensators: Vec<(usize, &Compensator)> =
+        groups.iter().enumerate().flat_map(|(g, group)| group.compensators.iter().map(move |c| (g, *c))).collect();
     let m = compensators.len();
-    // Compensations go two by two in the lanes of a pair (`pair`); an odd one out fills both
-    // lanes of its pair and reads only the first.
-    let lanes: Vec<[usize; 2]> = (0..m).step_by(2).map(|c| [c, (c + 1).min(m - 1)]).collect();
-    let solves: Vec<PairSolve> =
-        lanes.iter().map(|&[a, b]| PairSolve::new([compensators[a], compensators[b]])).collect();
-    let mut start = PairState::default();
-    for l in 0..2 {
+    let n = compensators.first().map_or(0, |(_, c)| c.mechanization().len());
+    if compensators.iter().any(|(_, c)| c.mechanization().len() != n) {
+        // Arrays of different sizes cannot share lanes: each group alone.
+        return groups
+            .iter_mut()
+            .flat_map(|g| navigate_groups_any(plan, initial, record_truths, std::slice::from_mut(g), gravity_i_m_s2))
+            .collect();
+    }
+    let mut outputs = vec![[vec![0.0; n], vec![0.0; n], vec![0.0; n]]; groups.len()];
+    // Compensations go [`LANES`] at a time; the last lanes of an incomplete set repeat its last
+    // compensation and are not read.
+    let lanes: Vec<[usize; LANES]> =
+        (0..m).step_by(LANES).map(|c| std::array::from_fn(|l| (c + l).min(m - 1))).collect();
+    let distinct = |set: &[usize; LANES], l: usize| l == 0 || set[l] != set[l - 1];
+    let solves: Vec<LaneSolve> = lanes.iter().map(|set| LaneSolve::new(set.map(|c| compensators[c].1))).collect();
+    let mut start = LaneState::default();
+    for l in 0..LANES {
         start.set_lane(l, initial.q_b_i.quaternion(), &initial.omega_b_rad_s, &initial.v_i_m_s, &initial.r_i_m);
     }
     let mut states = vec![start; lanes.len()];
@@ -92,46 +154,50 @@ pub fn navigate_together(
     let mut next_record = 0;
     let record_due = |done: usize,
                       next_record: &mut usize,
-                      states: &[PairState],
+                      states: &[LaneState],
                       active: &[bool],
                       drift: &mut [Vec<DriftSample>]| {
         while *next_record < plan.records.len() && plan.records[*next_record].0 == done {
             let horizon = plan.records[*next_record].1;
             for c in (0..m).filter(|&c| active[c]) {
-                let (q, w, v, r) = states[c / 2].lane(c % 2);
+                let (q, w, v, r) = states[c / LANES].lane(c % LANES);
                 let nav = NavState { q_b_i: UnitQuaternion::new_normalize(q), omega_b_rad_s: w, v_i_m_s: v, r_i_m: r };
                 drift[c].push(DriftSample::new(horizon, &nav, &record_truths[*next_record]));
             }
             *next_record += 1;
         }
     };
-    // The outputs' terms of each pair at the step's three distinct times: they do not depend on
-    // the state, so they are computed once per time and off the stages' chain of dependencies.
-    let mut terms = vec![[[L::default(); 6]; 3]; lanes.len()];
+    // Each set's readings at the step's three distinct times: they do not depend on the state,
+    // so they are computed once per time and off the stages' chain of dependencies.
+    let mut readings = vec![[vec![L::default(); n], vec![L::default(); n], vec![L::default(); n]]; lanes.len()];
     for (i, step) in plan.steps.iter().enumerate() {
         record_due(i, &mut next_record, &states, &active, &mut drift);
         if !active.iter().any(|&a| a) {
             break;
         }
-        fill(i, step, &mut outputs);
-        for (p, pair) in lanes.iter().enumerate() {
-            if !active[pair[0]] && !active[pair[1]] {
+        for (g, group) in groups.iter_mut().enumerate() {
+            if compensators.iter().zip(&active).any(|((cg, _), a)| *cg == g && *a) {
+                (group.fill)(i, step, &mut outputs[g]);
+            }
+        }
+        for (p, set) in lanes.iter().enumerate() {
+            if !set.iter().any(|&c| active[c]) {
                 continue;
             }
-            for (t, out) in terms[p].iter_mut().zip(&outputs) {
-                *t = solves[p].output_terms(out);
+            for (t, m) in readings[p].iter_mut().enumerate() {
+                solves[p].readings(set.map(|c| outputs[compensators[c].0][t].as_slice()), m);
             }
-            let y = solves[p].step(&states[p], &terms[p], step.h_s, gravity_i_m_s2);
+            let y = solves[p].step(&states[p], &readings[p], step.h_s, gravity_i_m_s2);
             // The rate equation is quadratic in omega (centripetal terms): with large enough
             // errors it blows up in finite time. A diverged navigation reports infinite errors
             // from then on; its lane keeps its last finite state and is no longer read.
             let finite = y.finite();
-            let used = if pair[0] == pair[1] { 1 } else { 2 };
-            if (0..used).all(|l| active[pair[l]] && finite[l]) {
+            if (0..LANES).filter(|&l| distinct(set, l)).all(|l| active[set[l]] && finite[l]) {
                 states[p] = y;
                 continue;
             }
-            for (l, &c) in pair.iter().enumerate().take(used) {
+            for l in (0..LANES).filter(|&l| distinct(set, l)) {
+                let c = set[l];
                 if active[c] && finite[l] {
                     let (q, w, v, r) = y.lane(l);
                     states[p].set_lane(l, &q, &w, &v, &r);
@@ -143,5 +209,6 @@ pub fn navigate_together(
         }
     }
     record_due(plan.steps.len(), &mut next_record, &states, &active, &mut drift);
-    drift
+    let mut drift = drift.into_iter();
+    groups.iter().map(|g| drift.by_ref().take(g.compensators.len()).collect()).collect()
 }

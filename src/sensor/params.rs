@@ -2,7 +2,7 @@
 
 use nalgebra::Vector3;
 
-use crate::array::{Array, FoldedSolve, Mechanization, RankError};
+use crate::array::{Array, Mechanization, RankError, RigidAccel};
 use crate::motion::RigidMotion;
 
 /// Error parameters of one accelerometer.
@@ -74,9 +74,9 @@ impl ArrayParams {
 /// for the rigid-body accelerations with the parameters' axes and positions.
 #[derive(Debug, Clone)]
 pub struct Compensator {
+    inv_scale: Vec<f64>,
+    bias_m_s2: Vec<f64>,
     mechanization: Mechanization,
-    /// The solve folded with the scale factors and biases (one linear map; `array::folded`).
-    folded: FoldedSolve,
 }
 
 impl Compensator {
@@ -84,15 +84,37 @@ impl Compensator {
     pub fn new(array: &Array, params: &ArrayParams) -> Result<Self, RankError> {
         let axes: Vec<_> = params.sensors.iter().map(|s| s.axis).collect();
         let mechanization = Mechanization::new(&params.positions_m(array), &axes)?;
-        let scale: Vec<f64> = params.sensors.iter().map(|s| s.scale_factor).collect();
-        let bias: Vec<f64> = params.sensors.iter().map(|s| s.bias_m_s2).collect();
-        let folded = FoldedSolve::new(&mechanization, &scale, &bias);
-        Ok(Self { mechanization, folded })
+        Ok(Self {
+            inv_scale: params.sensors.iter().map(|s| 1.0 / s.scale_factor).collect(),
+            bias_m_s2: params.sensors.iter().map(|s| s.bias_m_s2).collect(),
+            mechanization,
+        })
     }
 
-    /// The folded solve of this compensation (one linear map; `array::folded`).
-    pub fn folded(&self) -> &FoldedSolve {
-        &self.folded
+    /// The reading of output `s` of accelerometer `j`, `s / k_j - b_j` (m/s^2), as `s (1 / k_j) - b_j`.
+    #[inline(always)]
+    pub fn reading_m_s2(&self, j: usize, output: f64) -> f64 {
+        output * self.inv_scale[j] - self.bias_m_s2[j]
+    }
+
+    /// `(alpha, a_o)` in body axes from raw outputs, current body rate and gravity in body axes.
+    pub fn rigid_accel(
+        &self,
+        outputs: &[f64],
+        omega_b_rad_s: &Vector3<f64>,
+        gravity_b_m_s2: &Vector3<f64>,
+    ) -> RigidAccel {
+        let readings: Vec<f64> = outputs.iter().enumerate().map(|(j, s)| self.reading_m_s2(j, *s)).collect();
+        self.mechanization.solve(&readings, omega_b_rad_s, gravity_b_m_s2)
+    }
+
+    /// `1 / k_j` per accelerometer.
+    pub fn inv_scale(&self) -> &[f64] {
+        &self.inv_scale
+    }
+
+    pub fn bias_m_s2(&self) -> &[f64] {
+        &self.bias_m_s2
     }
 
     pub fn mechanization(&self) -> &Mechanization {
