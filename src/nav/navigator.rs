@@ -212,3 +212,86 @@ fn navigate_groups_any(
     let mut drift = drift.into_iter();
     groups.iter().map(|g| drift.by_ref().take(g.compensators.len()).collect()).collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::array::Array;
+    use crate::nav::{MotionGrid, Trajectory};
+    use crate::sensor::params::random_params;
+    use crate::sensor::{ArrayParams, SimulatedArray};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    type Navigated = Vec<Vec<Vec<DriftSample>>>;
+
+    /// Navigates `trials` (true parameters, compensations) as groups in lockstep, with the
+    /// dispatching entry (`avx`) or the portable copy.
+    fn run(grid: &MotionGrid, cube: &Array, trials: &[(ArrayParams, Vec<Compensator>)], avx: bool) -> Navigated {
+        let g = Vector3::new(0.0, 0.0, -9.80665);
+        let trajectory = Trajectory::paper_manoeuvre(4.0);
+        let mut sources: Vec<_> =
+            trials.iter().map(|(truth, _)| SimulatedArray::<ChaCha8Rng>::new(cube, truth, &trajectory, g)).collect();
+        let mut fills: Vec<Box<StepFill<'_>>> = sources
+            .iter_mut()
+            .map(|s| {
+                Box::new(move |i: usize, step: &PlanStep, out: &mut StageOutputs| {
+                    s.fill_step(&grid.motions[i], step.t_s, step.h_s, out)
+                }) as Box<StepFill<'_>>
+            })
+            .collect();
+        let mut groups: Vec<NavGroup<'_, '_>> = fills
+            .iter_mut()
+            .zip(trials)
+            .map(|(fill, (_, comps))| NavGroup { fill: fill.as_mut(), compensators: comps.iter().collect() })
+            .collect();
+        let (plan, initial, records) = (&grid.plan, &grid.initial, &grid.record_truths);
+        if avx {
+            navigate_groups(plan, initial, records, &mut groups, &g)
+        } else {
+            navigate_groups_any(plan, initial, records, &mut groups, &g)
+        }
+    }
+
+    /// Three trials in lockstep (seven compensations: two sets of four lanes, the last padded),
+    /// one of them diverging, give each compensation the bits it gets navigated alone; and the
+    /// AVX copy (where the processor has AVX) the bits of the portable one.
+    #[test]
+    fn lockstep_and_avx_give_each_compensation_the_bits_it_gets_alone() {
+        let mut rng = ChaCha8Rng::seed_from_u64(17);
+        let cube = Array::cube(0.1).expect("cube");
+        let g = Vector3::new(0.0, 0.0, -9.80665);
+        let grid = MotionGrid::new(&Trajectory::paper_manoeuvre(4.0), &g, 0.01, &[1.0, 2.0, 4.0]);
+        let trials: Vec<(ArrayParams, Vec<Compensator>)> = [2, 3, 2]
+            .iter()
+            .map(|&k| {
+                let truth = random_params(&cube, &mut rng);
+                let mut comps: Vec<Compensator> = (0..k)
+                    .map(|_| Compensator::new(&cube, &random_params(&cube, &mut rng)).expect("full rank"))
+                    .collect();
+                if k == 3 {
+                    // Locations 5 cm off, unevenly: the centripetal terms no longer cancel in
+                    // the angular acceleration, and the rate equation blows up.
+                    let mut short = ArrayParams::nominal(&cube);
+                    for (j, s) in short.sensors.iter_mut().enumerate() {
+                        s.location_error_m = Vector3::new(0.05, -0.03, 0.04) * (j as f64 - 2.5);
+                    }
+                    comps[1] = Compensator::new(&cube, &short).expect("full rank");
+                }
+                (truth, comps)
+            })
+            .collect();
+        let together = run(&grid, &cube, &trials, false);
+        let diverged = together.iter().flatten().filter(|d| d.last().is_some_and(|s| s.rate_err_rad_s.is_infinite()));
+        assert_eq!(diverged.count(), 1, "the short-armed compensation diverges, the others do not");
+        for (t, (truth, comps)) in trials.iter().enumerate() {
+            for (c, comp) in comps.iter().enumerate() {
+                let alone = run(&grid, &cube, &[(truth.clone(), vec![comp.clone()])], false);
+                assert_eq!(alone[0][0], together[t][c], "trial {t}, compensation {c}");
+            }
+        }
+        #[cfg(target_arch = "x86_64")]
+        eprintln!("AVX: {}", std::arch::is_x86_feature_detected!("avx"));
+        assert_eq!(run(&grid, &cube, &trials, true), together);
+    }
+}

@@ -576,6 +576,29 @@ fn a_fit_that_leaves_the_small_error_region_is_not_called_converged() {
     }
 }
 
+/// Issue 14: trials navigated in lockstep (their compensations side by side in packed lanes) give
+/// the records each gives alone, including beside a trial whose estimate is refused (8931: its
+/// estimated compensation is absent and reads NaN), so the sets of lanes hold three
+/// compensations.
+#[test]
+fn trials_in_lockstep_give_the_records_each_gives_alone() {
+    use gfcal::mc::trial::{Prepared, run_trial, run_trials};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+    let cfg = McConfig::load(&root.join("quickstart.toml")).unwrap();
+    let cell = &cfg.cells[0];
+    let prepared = Prepared::new(cell);
+    for range in [8930..8932, 8931..8933, 40..44] {
+        let together = run_trials(cell, &prepared, cfg.seed, range.clone());
+        assert_eq!(together.len(), range.clone().count());
+        for (t, r) in range.zip(&together) {
+            // Debug prints every f64 to its bits (NaN included, which `==` would not equate).
+            assert_eq!(format!("{:?}", run_trial(cell, &prepared, cfg.seed, t)), format!("{r:?}"), "trial {t}");
+        }
+    }
+    let alone = run_trial(cell, &prepared, cfg.seed, 8931);
+    assert!(!alone.converged && alone.drift.iter().any(|d| d.is_nan()), "8931's estimate is refused");
+}
+
 /// Issue 13: a run in which every fit fails (a schedule of two static poses cannot identify the
 /// locations) writes its tables and summary but exits 1 saying no trial produced an estimate; a
 /// run with no noise says before it starts that `ratio` and `coverage_95` are undefined.
