@@ -16,7 +16,7 @@ use crate::calib::pose::{self, marginal_fisher, tilted_schedule};
 use crate::calib::{Estimate, paper};
 use crate::config::calibration::Estimator;
 use crate::nav::navigator::StepFill;
-use crate::nav::{MotionGrid, NavGroup, PlanStep, navigate_groups};
+use crate::nav::{MotionGrid, NavGroup, PlanStep, Route, navigate_groups};
 use crate::rng::trial_rng;
 use crate::sensor::noise::NoiseGenerator;
 use crate::sensor::{ArrayParams, Compensator, SimulatedArray};
@@ -244,7 +244,13 @@ fn navigate_and_record(cell: &Cell, prepared: &Prepared, seed: u64, calibrated: 
         .zip(&compensators)
         .map(|(fill, comps)| NavGroup { fill: fill.as_mut(), compensators: comps.iter().flatten().collect() })
         .collect();
-    let navigated = navigate_groups(&grid.plan, &grid.initial, &grid.record_truths, &mut groups, &gravity_i);
+    let route = Route {
+        plan: &grid.plan,
+        initial: &grid.initial,
+        record_truths: &grid.record_truths,
+        gravity_i_m_s2: &gravity_i,
+    };
+    let navigated = navigate_groups(&route, &mut groups);
     calibrated
         .iter()
         .zip(&compensators)

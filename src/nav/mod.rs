@@ -16,6 +16,6 @@ pub mod trajectory;
 pub use drift::{DriftRow, DriftSample, DriftSetup, drift_study};
 pub use grid::MotionGrid;
 pub use lanes::LANES;
-pub use navigator::{NavGroup, NavState, navigate, navigate_groups, navigate_together};
+pub use navigator::{NavGroup, NavState, Route, navigate, navigate_groups, navigate_together};
 pub use plan::{Plan, PlanStep};
 pub use trajectory::{InitialState, Segment, Trajectory, TruthState};

@@ -75,7 +75,17 @@ pub fn navigate_together(
     gravity_i_m_s2: &Vector3<f64>,
 ) -> Vec<Vec<DriftSample>> {
     let mut groups = [NavGroup { fill, compensators: compensators.to_vec() }];
-    navigate_groups(plan, initial, record_truths, &mut groups, gravity_i_m_s2).pop().unwrap_or_default()
+    navigate_groups(&Route { plan, initial, record_truths, gravity_i_m_s2 }, &mut groups).pop().unwrap_or_default()
+}
+
+/// What every navigation of a lockstep shares: the steps, the initial state, the true state at
+/// each of `plan.records`, and gravity in inertial axes.
+#[derive(Debug, Clone, Copy)]
+pub struct Route<'a> {
+    pub plan: &'a Plan,
+    pub initial: &'a TruthState,
+    pub record_truths: &'a [TruthState],
+    pub gravity_i_m_s2: &'a Vector3<f64>,
 }
 
 /// One source of outputs (a trial's array) and the compensations that navigate it.
@@ -88,43 +98,26 @@ pub struct NavGroup<'f, 'c> {
 /// with its own outputs): every compensation of every group goes in lockstep, [`LANES`] to a
 /// packed number. Returns per group, per compensation, the drift at each record. Each
 /// compensation's numbers are those it gets navigated alone.
-pub fn navigate_groups(
-    plan: &Plan,
-    initial: &TruthState,
-    record_truths: &[TruthState],
-    groups: &mut [NavGroup<'_, '_>],
-    gravity_i_m_s2: &Vector3<f64>,
-) -> Vec<Vec<Vec<DriftSample>>> {
+pub fn navigate_groups(route: &Route<'_>, groups: &mut [NavGroup<'_, '_>]) -> Vec<Vec<Vec<DriftSample>>> {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx") {
         // SAFETY: the processor has AVX, the only feature the copy is compiled for.
-        return unsafe { navigate_groups_avx(plan, initial, record_truths, groups, gravity_i_m_s2) };
+        return unsafe { navigate_groups_avx(route, groups) };
     }
-    navigate_groups_any(plan, initial, record_truths, groups, gravity_i_m_s2)
+    navigate_groups_any(route, groups)
 }
 
 /// [`navigate_groups_any`] compiled for AVX: the four lanes in one instruction. Same
 /// instructions otherwise (no fused multiply-add), so the same bits.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx")]
-fn navigate_groups_avx(
-    plan: &Plan,
-    initial: &TruthState,
-    record_truths: &[TruthState],
-    groups: &mut [NavGroup<'_, '_>],
-    gravity_i_m_s2: &Vector3<f64>,
-) -> Vec<Vec<Vec<DriftSample>>> {
-    navigate_groups_any(plan, initial, record_truths, groups, gravity_i_m_s2)
+fn navigate_groups_avx(route: &Route<'_>, groups: &mut [NavGroup<'_, '_>]) -> Vec<Vec<Vec<DriftSample>>> {
+    navigate_groups_any(route, groups)
 }
 
 #[inline(always)]
-fn navigate_groups_any(
-    plan: &Plan,
-    initial: &TruthState,
-    record_truths: &[TruthState],
-    groups: &mut [NavGroup<'_, '_>],
-    gravity_i_m_s2: &Vector3<f64>,
-) -> Vec<Vec<Vec<DriftSample>>> {
+fn navigate_groups_any(route: &Route<'_>, groups: &mut [NavGroup<'_, '_>]) -> Vec<Vec<Vec<DriftSample>>> {
+    let Route { plan, initial, record_truths, gravity_i_m_s2 } = *route;
     // Every compensation, with its group.
     let compensators: Vec<(usize, &Compensator)> =
         groups.iter().enumerate().flat_map(|(g, group)| group.compensators.iter().map(move |c| (g, *c))).collect();
@@ -132,10 +125,7 @@ fn navigate_groups_any(
     let n = compensators.first().map_or(0, |(_, c)| c.mechanization().len());
     if compensators.iter().any(|(_, c)| c.mechanization().len() != n) {
         // Arrays of different sizes cannot share lanes: each group alone.
-        return groups
-            .iter_mut()
-            .flat_map(|g| navigate_groups_any(plan, initial, record_truths, std::slice::from_mut(g), gravity_i_m_s2))
-            .collect();
+        return groups.iter_mut().flat_map(|g| navigate_groups_any(route, std::slice::from_mut(g))).collect();
     }
     let mut outputs = vec![[vec![0.0; n], vec![0.0; n], vec![0.0; n]]; groups.len()];
     // Compensations go [`LANES`] at a time; the last lanes of an incomplete set repeat its last
@@ -245,12 +235,9 @@ mod tests {
             .zip(trials)
             .map(|(fill, (_, comps))| NavGroup { fill: fill.as_mut(), compensators: comps.iter().collect() })
             .collect();
-        let (plan, initial, records) = (&grid.plan, &grid.initial, &grid.record_truths);
-        if avx {
-            navigate_groups(plan, initial, records, &mut groups, &g)
-        } else {
-            navigate_groups_any(plan, initial, records, &mut groups, &g)
-        }
+        let route =
+            Route { plan: &grid.plan, initial: &grid.initial, record_truths: &grid.record_truths, gravity_i_m_s2: &g };
+        if avx { navigate_groups(&route, &mut groups) } else { navigate_groups_any(&route, &mut groups) }
     }
 
     /// Three trials in lockstep (seven compensations: two sets of four lanes, the last padded),
