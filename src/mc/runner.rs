@@ -272,8 +272,6 @@ struct Computed {
     metadata: Vec<(String, String)>,
 }
 
-/// Writes a computed part (parameters first, then trials, each atomically), gives up its claim,
-/// and adds the part to the summary being built, if any.
 /// `range`'s trials in runs that navigate in lockstep: consecutive trials of one cell, as many
 /// as fill the navigation's lanes with their compensations (two trials of two compensations).
 fn lockstep_chunks(cfg: &McConfig, range: std::ops::Range<u64>) -> Vec<std::ops::Range<u64>> {
@@ -290,6 +288,8 @@ fn lockstep_chunks(cfg: &McConfig, range: std::ops::Range<u64>) -> Vec<std::ops:
     chunks
 }
 
+/// Writes a computed part (parameters first, then trials, each atomically), gives up its claim,
+/// and adds the part to the summary being built, if any.
 fn write_computed(
     cfg: &McConfig,
     out: &Path,

@@ -125,7 +125,7 @@ fn navigate_groups_any(route: &Route<'_>, groups: &mut [NavGroup<'_, '_>]) -> Ve
     let n = compensators.first().map_or(0, |(_, c)| c.mechanization().len());
     if compensators.iter().any(|(_, c)| c.mechanization().len() != n) {
         // Arrays of different sizes cannot share lanes: each group alone.
-        return groups.iter_mut().flat_map(|g| navigate_groups_any(route, std::slice::from_mut(g))).collect();
+        return groups.iter_mut().flat_map(|g| navigate_groups(route, std::slice::from_mut(g))).collect();
     }
     let mut outputs = vec![[vec![0.0; n], vec![0.0; n], vec![0.0; n]]; groups.len()];
     // Compensations go [`LANES`] at a time; the last lanes of an incomplete set repeat its last
