@@ -597,6 +597,47 @@ fn trials_in_lockstep_give_the_records_each_gives_alone() {
     }
     let alone = run_trial(cell, &prepared, cfg.seed, 8931);
     assert!(!alone.converged && alone.drift.iter().any(|d| d.is_nan()), "8931's estimate is refused");
+
+    // Through the runner, with lockstep chunks cut by cells of 7 trials and parts of 6 (the part
+    // 6..12 would pair trials 6 and 7 across the cells were it not cut there): every drift
+    // value in the table is the one its trial gives alone.
+    let text = std::fs::read_to_string(root.join("quickstart.toml")).unwrap();
+    let text = text
+        .replace("trials_per_cell = 20000", "trials_per_cell = 7")
+        .replace("trials_per_part = 2048", "trials_per_part = 6")
+        + "\n[sweep]\ndesign = \"factorial\"\n[[sweep.factor]]\nkey = \"noise.white_density_ug_per_sqrt_hz\"\nlevels = [20.0, 80.0]\n";
+    let dir = tempfile::tempdir().unwrap();
+    let cfg_path = write_config(dir.path(), "odd.toml", &text);
+    let cfg = McConfig::load(&cfg_path).unwrap();
+    assert_eq!((cfg.cells.len(), cfg.trials_per_cell, cfg.parts()), (2, 7, 3));
+    let out = dir.path().join("out");
+    run(&cfg, &cfg_path, &opts(&out, 2, (0, 1)), &Silent).unwrap();
+    let mut checked = 0;
+    for (_, batches) in table(&out, "trials") {
+        for b in batches {
+            let ids =
+                b.column_by_name("trial_id").unwrap().as_any().downcast_ref::<arrow_array::UInt64Array>().unwrap();
+            for row in 0..b.num_rows() {
+                let t = ids.value(row);
+                let cell = &cfg.cells[(t / cfg.trials_per_cell) as usize];
+                let alone = run_trial(cell, &Prepared::new(cell), cfg.seed, t);
+                let mut k = 0;
+                for comp in ["nominal", "estimated"] {
+                    for h in ["1", "2", "5", "10"] {
+                        for (metric, _) in gfcal::mc::trial::DRIFT_METRICS {
+                            let name = format!("{comp}_{metric}_at_{h}s");
+                            let column = b.column_by_name(&name).unwrap_or_else(|| panic!("{name}"));
+                            let got = column.as_any().downcast_ref::<arrow_array::Float64Array>().unwrap().value(row);
+                            assert_eq!(got.to_bits(), alone.drift[k].to_bits(), "trial {t}, {name}");
+                            k += 1;
+                            checked += 1;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert_eq!(checked, 14 * 32);
 }
 
 /// Issue 13: a run in which every fit fails (a schedule of two static poses cannot identify the
