@@ -57,6 +57,9 @@ def main(run_dir):
         if b"unit" not in meta:
             fail(f"column {field.name} has no unit in the schema")
     for field in drift_cols:
+        # "No estimate" is null (skipped by quantiles), never NaN (issue 30).
+        if trials[field.name].is_nan().sum() > 0:
+            fail(f"{field.name}: NaN where there is no estimate (it must be null)")
         unit = field.metadata[b"unit"].decode()
         stem = field.name.split("_at_")[0]
         expected = next(u for s, u in sorted(UNIT_OF_SUFFIX.items(), key=lambda kv: -len(kv[0])) if stem.endswith(s))
@@ -76,6 +79,14 @@ def main(run_dir):
     summary = pl.read_csv(run_dir / "summary.csv")
     if summary.filter(pl.col("table") == "parameter").height == 0:
         fail("summary.csv has no parameter rows")
+    # The fits rows: per cell, the outcomes add up to the cell's trials, and `estimated` are the converged.
+    fits = summary.filter(pl.col("table") == "fits").group_by("cell").agg(pl.col("n").sum()).sort("cell")
+    per_cell = trials.group_by("cell").agg(n=pl.len(), converged=pl.col("converged").sum()).sort("cell")
+    if fits["n"].to_list() != per_cell["n"].to_list():
+        fail(f"summary.csv's fits rows count {fits['n'].to_list()} trials per cell, the table {per_cell['n'].to_list()}")
+    estimated = summary.filter((pl.col("table") == "fits") & (pl.col("name") == "estimated"))
+    if estimated["n"].sum() > per_cell["converged"].sum():
+        fail("more `estimated` fits than converged trials")
     print(f"check_parquet: ok: {total} trials, {params.height} parameter rows, "
           f"{len(drift_cols)} drift columns with units; polars {pl.__version__}")
 

@@ -116,10 +116,13 @@ import sys, pathlib, numpy as np, pyarrow as pa, pyarrow.parquet as pq
 a, b = (pathlib.Path(p) for p in sys.argv[1:3])
 
 def same(ta, tb):
-    """Equal columns, NaN equal to NaN in the same place (failed fits are NaN in both)."""
+    """Equal columns, NaN equal to NaN and null to null in the same place (no estimate: null in the
+    drift columns, NaN in the parameters)."""
     if ta.schema.names != tb.schema.names or ta.num_rows != tb.num_rows:
         return False
     for x, y in zip(ta.columns, tb.columns):
+        if x.null_count != y.null_count or not x.is_null().equals(y.is_null()):
+            return False
         if pa.types.is_floating(x.type):
             if not np.array_equal(x.to_numpy(), y.to_numpy(), equal_nan=True):
                 return False
@@ -142,4 +145,7 @@ print(f"identical: {n} rows in {len(fa)} parts per table, and summary.csv")
 PY
 locks=$(find "$sharded/locks" -type f 2> /dev/null | wc -l)
 [ "$locks" -eq 0 ] || { echo "slurm.sh: $locks part claims left behind" >&2; exit 1; }
+# A finished run leaves no lock file or empty folder (issue 30; summarize tidies after the last task).
+[ ! -e "$sharded/.gfcal-run.lock" ] && [ ! -e "$sharded/locks" ] \
+  || { echo "slurm.sh: a lock file or the locks/ folder is left behind" >&2; exit 1; }
 echo "slurm: install $((t_installed - t0)) s, cluster start $((t_started - t_installed)) s, job array $((t_ran - t_started)) s"

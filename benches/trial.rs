@@ -13,9 +13,10 @@ use gfcal::calib::joint::estimate_unchecked;
 use gfcal::calib::measure::simulate;
 use gfcal::mc::McConfig;
 use gfcal::mc::trial::{Prepared, crb_sigma, run_trial};
+use gfcal::nav::SimulatedArray;
 use gfcal::nav::navigate;
 use gfcal::rng::trial_rng;
-use gfcal::sensor::{ArrayParams, Compensator, SimulatedArray};
+use gfcal::sensor::{ArrayParams, Compensator};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 

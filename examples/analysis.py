@@ -67,9 +67,9 @@ for comp in ["nominal", "estimated", "true"]:
     if not cols:
         continue
     horizons = [h for h, _ in cols]
-    # Diverged navigations (+inf) count as larger than any value, as in summary.csv; NaN (no
-    # estimate) is left out.
-    q = [drift[c].filter(drift[c].is_not_nan()).quantile for _, c in cols]
+    # Diverged navigations (+inf) count as larger than any value, as in summary.csv; "no estimate"
+    # is null, which quantiles skip (runs written before issue 30 have NaN there: dropped too).
+    q = [drift[c].drop_nulls().filter(drift[c].drop_nulls().is_not_nan()).quantile for _, c in cols]
     med = [f(0.5) for f in q]
     lo, hi = [f(0.05) for f in q], [f(0.95) for f in q]
     line = ax.loglog(horizons, med, marker="o", label=f"{comp}: median")[0]

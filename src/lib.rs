@@ -6,7 +6,7 @@
 //! navigation that integrates its outputs (Hung & Lee 2006, eq. 1-4), so that calibration
 //! schedules and their residual errors can be studied.
 //!
-//! Conventions (see `README.md`): SI units inside the library, units in every name
+//! Conventions (see `docs/model.md`): SI units inside the library, units in every name
 //! (`bias_m_s2`, `rate_rad_s`); body frame `b` at the array's geometric centre; inertial frame
 //! `i` local, non-rotating, z up, gravity `(0, 0, -g)`. Specific force at a body point `r`:
 //! `f(r) = a_o + alpha x r + omega x (omega x r) - g_b`.
@@ -16,6 +16,7 @@ pub mod calib;
 pub mod config;
 pub mod discrepancy;
 pub mod io;
+pub mod lincov;
 pub mod mc;
 pub mod motion;
 pub mod nav;
@@ -24,4 +25,5 @@ pub mod rng;
 pub mod selfcal;
 pub mod sensor;
 pub mod signal;
+pub mod stats;
 pub mod units;

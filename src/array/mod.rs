@@ -1,4 +1,5 @@
-//! The accelerometer array: nominal geometry and the mechanization derived from it.
+//! The accelerometer array: nominal geometry, the mechanization derived from it, and the array
+//! file's wiring (columns, ranges, reference gyroscopes).
 //!
 //! Accelerometer `j` sits at `r_j` (body frame, m) with unit sensitive axis `theta_j`. An ideal
 //! accelerometer reads `theta_j . f(r_j)`; stacking N readings gives a linear system in the
@@ -7,6 +8,7 @@
 
 pub mod geometry;
 pub mod mechanization;
+pub mod wiring;
 
 pub use geometry::{Accelerometer, Array, ArrayError};
 pub use mechanization::{Mechanization, RankError, RigidAccel};

@@ -83,7 +83,8 @@ pub fn outside_small_error_region(layout: &Layout, x: &DVector<f64>) -> Option<S
 /// variance at rate `r` is `d^2 r`), plus `misfit`, the weighted squared misfit of the step
 /// means already in density units (each mean weighted by the time its samples span), over the
 /// degrees of freedom left by `parameters`. `inv_k[j]` refers accelerometer j's output to its
-/// input.
+/// input. NaN when no degree of freedom is left (as many parameters as samples): such a fit
+/// passes through its data and says nothing of the noise (it used to divide by 1).
 pub fn residual_density_m_s2_per_sqrt_hz(
     schedule: &super::schedule::Schedule,
     meas: &super::measure::Measurements,
@@ -98,7 +99,10 @@ pub fn residual_density_m_s2_per_sqrt_hz(
         .map(|(step, m)| m.within_ss.iter().zip(inv_k).map(|(ss, ik)| ss * ik * ik).sum::<f64>() / step.sample_rate_hz)
         .sum();
     let samples: usize = meas.steps.iter().map(|m| m.samples * inv_k.len()).sum();
-    ((within + misfit) / samples.saturating_sub(parameters).max(1) as f64).sqrt()
+    match samples.checked_sub(parameters) {
+        Some(dof) if dof > 0 => ((within + misfit) / dof as f64).sqrt(),
+        _ => f64::NAN,
+    }
 }
 
 /// Why an estimator could not answer.
@@ -149,4 +153,30 @@ pub fn check_shape(layout: &Layout, steps: usize, m: &super::Measurements) -> Re
         return Err(CalibError::Measurements { problem: format!("step {} has a non-finite value", i + 1) });
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::residual_density_m_s2_per_sqrt_hz;
+    use crate::calib::measure::{Measurements, StepStats};
+    use crate::calib::schedule::{Schedule, Step};
+
+    /// Issue 30: with as many parameters as samples no degree of freedom is left and the residual
+    /// density is NaN (it used to divide by 1); one degree of freedom divides by 1.
+    #[test]
+    fn no_residual_density_without_degrees_of_freedom() {
+        let step = Step::static_pose("up", nalgebra::Vector3::z(), 0.02, 100.0);
+        let schedule = Schedule::new("one", vec![step]).expect("a schedule");
+        let mut stats = StepStats::empty(1);
+        for v in [1.0, 3.0] {
+            stats.push(&[v]);
+        }
+        // Two samples with scatter 2 (sum of squares about the mean): the within-step variance
+        // at 100 Hz is 2 / 100 in density units.
+        let meas = Measurements { steps: vec![stats] };
+        let one = residual_density_m_s2_per_sqrt_hz(&schedule, &meas, &[1.0], 0.0, 1);
+        assert!((one - (2.0f64 / 100.0).sqrt()).abs() < 1e-15, "{one}");
+        assert!(residual_density_m_s2_per_sqrt_hz(&schedule, &meas, &[1.0], 0.0, 2).is_nan());
+        assert!(residual_density_m_s2_per_sqrt_hz(&schedule, &meas, &[1.0], 0.0, 7).is_nan());
+    }
 }

@@ -12,6 +12,7 @@ use super::measure::simulate;
 use super::params::{Form, Layout, ParamKind};
 use super::schedule::Schedule;
 use crate::array::Array;
+use crate::io::format::significant;
 use crate::sensor::misalignment::{Misalignment, TriadAngles};
 use crate::sensor::noise::NoiseSpec;
 use crate::sensor::params::{ArrayParams, SensorParams};
@@ -278,4 +279,55 @@ fn location_from_table8(
         out.push([dr.x / M_PER_MM, dr.y / M_PER_MM, dr.z / M_PER_MM]);
     }
     Ok(out)
+}
+
+/// Columns of the reproduced tables.
+pub const TABLE_COLUMNS: [&str; 12] = [
+    "parameter",
+    "accelerometer",
+    "unit",
+    "true",
+    "paper",
+    "paper_model",
+    "noise_free",
+    "mc_mean",
+    "mc_std",
+    "crb_sigma",
+    "augmented_mc_std",
+    "augmented_crb_sigma",
+];
+
+fn row_values(r: &TableRow) -> [f64; 9] {
+    [
+        r.truth,
+        r.paper,
+        r.paper_model,
+        r.noise_free,
+        r.mc_mean,
+        r.mc_std,
+        r.crb_sigma,
+        r.augmented_mc_std,
+        r.augmented_crb_sigma,
+    ]
+}
+
+/// A reproduced table as CSV (full precision).
+pub fn table_csv(rows: &[TableRow]) -> String {
+    let mut s = TABLE_COLUMNS.join(",") + "\n";
+    for r in rows {
+        let v: Vec<String> = row_values(r).iter().map(|v| format!("{v:e}")).collect();
+        s.push_str(&format!("{},{},{},{}\n", r.parameter, r.accelerometer, r.unit, v.join(",")));
+    }
+    s
+}
+
+/// A reproduced table as Markdown (5 significant digits), with a caption.
+pub fn table_markdown(caption: &str, rows: &[TableRow]) -> String {
+    let mut s =
+        format!("{caption}\n\n| {} |\n|{}|\n", TABLE_COLUMNS.join(" | "), vec!["---"; TABLE_COLUMNS.len()].join("|"));
+    for r in rows {
+        let v: Vec<String> = row_values(r).iter().map(|v| significant(*v, 5)).collect();
+        s.push_str(&format!("| {} | {} | {} | {} |\n", r.parameter, r.accelerometer, r.unit, v.join(" | ")));
+    }
+    s
 }

@@ -18,12 +18,14 @@
 //! axis = [1.0, 1.0, 0.0]
 //! ```
 //!
-//! For calibrating a recording (`gfcal calibrate`), an accelerometer may also name the table
-//! column it is read from (default `s1..sN`) and its range (`range_m_s2`: outputs at or beyond it
-//! are clipped and left out), and the file may list reference gyroscopes used only to check the
+//! For calibrating a recording (`gfcal calibrate`), the file may name the recording's time column
+//! (`time_column`, in seconds; default `t_s`), an accelerometer may also name the table column it
+//! is read from (default `s1..sN`) and its range (`range_m_s2`: outputs at or beyond it are
+//! clipped and left out), and the file may list reference gyroscopes used only to check the
 //! result (or, with `--use-gyro`, to supply the angular rate):
 //!
 //! ```toml
+//! time_column = "time_s"
 //! [[accelerometer]]
 //! position_m = [-0.00945, 0.00945, 0.001]
 //! axis = [1.0, 0.0, 0.0]
@@ -34,14 +36,31 @@
 //! column = "gyro1_x_rad_s"
 //! range_rad_s = 34.87
 //! ```
+//!
+//! Each accelerometer and gyroscope may name the package (chip) it sits in, and a package may
+//! declare its internal sample clock and that the host reads its latest sample (sample-and-hold)
+//! rather than one synchronised to the host's sample instant (`array::wiring`):
+//!
+//! ```toml
+//! [[package]]
+//! name = "imu1"
+//! sample_clock_hz = 1000.0
+//! sample_and_hold = true
+//! [[accelerometer]]
+//! package = "imu1"
+//! # ...
+//! ```
+//!
+//! Without `[[package]]` entries, the names the accelerometers give make packages without a
+//! clock. With them, every name must be declared.
 
 use std::path::Path;
 
 use serde::Deserialize;
 
 use super::{Bad, ConfigError, positive, read_toml};
+use crate::array::wiring::{DEFAULT_TIME_COLUMN, Package, RecordingArray, ReferenceGyro};
 use crate::array::{Array, ArrayError};
-use crate::selfcal::recording::{RecordingArray, ReferenceGyro};
 
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -55,12 +74,28 @@ pub struct ArraySection {
 #[serde(deny_unknown_fields)]
 pub struct ArrayFile {
     pub name: Option<String>,
+    /// Recordings: the column holding the time, s (default `t_s`).
+    pub time_column: Option<String>,
     #[serde(default)]
     pub triads: Vec<[usize; 3]>,
     #[serde(default)]
     pub accelerometer: Vec<AccelerometerEntry>,
     #[serde(default)]
     pub gyroscope: Vec<GyroscopeEntry>,
+    #[serde(default)]
+    pub package: Vec<PackageEntry>,
+}
+
+/// A package (chip) and its sample clock.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PackageEntry {
+    pub name: String,
+    /// Nominal rate of the package's internal sample clock, Hz.
+    pub sample_clock_hz: Option<f64>,
+    /// The host reads the latest internal sample (default false: synchronised).
+    #[serde(default)]
+    pub sample_and_hold: bool,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -72,6 +107,8 @@ pub struct AccelerometerEntry {
     pub column: Option<String>,
     /// Measurement range, m/s^2 (outputs at or beyond it are clipped).
     pub range_m_s2: Option<f64>,
+    /// The package (chip) it sits in.
+    pub package: Option<String>,
 }
 
 /// A reference gyroscope axis of a recording.
@@ -82,6 +119,8 @@ pub struct GyroscopeEntry {
     pub column: String,
     /// Measurement range, rad/s (readings at or beyond it are clipped).
     pub range_rad_s: Option<f64>,
+    /// The package (chip) it sits in.
+    pub package: Option<String>,
 }
 
 impl ArraySection {
@@ -132,6 +171,7 @@ pub fn load_recording_array(path: &Path) -> Result<RecordingArray, ConfigError> 
         };
         ranges_m_s2.push(range);
     }
+    let (packages, package_of, gyro_packages) = packages(path, &file)?;
     let mut gyroscopes = Vec::new();
     for (i, g) in file.gyroscope.iter().enumerate() {
         let axis = super::vec3(&format!("gyroscope[{i}].axis"), g.axis).map_err(|b| b.in_file(path))?;
@@ -142,7 +182,12 @@ pub fn load_recording_array(path: &Path) -> Result<RecordingArray, ConfigError> 
             Some(r) => positive(&format!("gyroscope[{i}].range_rad_s"), r).map_err(|b| b.in_file(path))?,
             None => f64::INFINITY,
         };
-        gyroscopes.push(ReferenceGyro { axis: axis.normalize(), column: g.column.clone(), range_rad_s });
+        gyroscopes.push(ReferenceGyro {
+            axis: axis.normalize(),
+            column: g.column.clone(),
+            range_rad_s,
+            package: gyro_packages[i],
+        });
     }
     if !gyroscopes.is_empty() {
         let m: nalgebra::Matrix3<f64> = gyroscopes.iter().map(|g| g.axis * g.axis.transpose()).sum();
@@ -152,13 +197,105 @@ pub fn load_recording_array(path: &Path) -> Result<RecordingArray, ConfigError> 
             );
         }
     }
+    let time_column = match &file.time_column {
+        None => DEFAULT_TIME_COLUMN.to_string(),
+        Some(c) if c.trim().is_empty() => {
+            return Err(Bad::new("time_column", "is empty: name the recording's time column (seconds)").in_file(path));
+        }
+        Some(c) => c.clone(),
+    };
     let mut seen = std::collections::HashSet::new();
     for c in accelerometer_columns.iter().chain(gyroscopes.iter().map(|g| &g.column)) {
         if !seen.insert(c.clone()) {
             return Err(Bad::new("accelerometer", format!("column `{c}` is named twice")).in_file(path));
         }
     }
-    Ok(RecordingArray { array, accelerometer_columns, ranges_m_s2, gyroscopes, path: path.to_path_buf() })
+    if seen.contains(&time_column) {
+        return Err(Bad::new(
+            "time_column",
+            format!("`{time_column}` is also a sensor's column: the time needs a column of its own"),
+        )
+        .in_file(path));
+    }
+    Ok(RecordingArray {
+        array,
+        accelerometer_columns,
+        ranges_m_s2,
+        gyroscopes,
+        packages,
+        package_of,
+        time_column,
+        path: path.to_path_buf(),
+    })
+}
+
+/// The packages of an array file: those `[[package]]` declares, or else those the sensors name
+/// (in the order they first appear), with the package of every accelerometer and gyroscope.
+#[allow(clippy::type_complexity)]
+fn packages(
+    path: &Path,
+    file: &ArrayFile,
+) -> Result<(Vec<Package>, Vec<Option<usize>>, Vec<Option<usize>>), ConfigError> {
+    let mut packages: Vec<Package> = Vec::new();
+    for (i, p) in file.package.iter().enumerate() {
+        if p.name.trim().is_empty() {
+            return Err(Bad::new(format!("package[{i}].name"), "is empty").in_file(path));
+        }
+        if packages.iter().any(|q| q.name == p.name) {
+            return Err(
+                Bad::new(format!("package[{i}].name"), format!("package `{}` is declared twice", p.name)).in_file(path)
+            );
+        }
+        let sample_clock_hz = match p.sample_clock_hz {
+            Some(f) => Some(positive(&format!("package[{i}].sample_clock_hz"), f).map_err(|b| b.in_file(path))?),
+            None => None,
+        };
+        if p.sample_and_hold && sample_clock_hz.is_none() {
+            return Err(Bad::new(
+                format!("package[{i}].sample_and_hold"),
+                "needs the package's `sample_clock_hz` (the latest sample of which clock?)",
+            )
+            .in_file(path));
+        }
+        packages.push(Package { name: p.name.clone(), sample_clock_hz, sample_and_hold: p.sample_and_hold });
+    }
+    let declared = !packages.is_empty();
+    let mut find = |key: String, name: &Option<String>, what: String| -> Result<Option<usize>, ConfigError> {
+        let Some(name) = name else { return Ok(None) };
+        if let Some(i) = packages.iter().position(|p| &p.name == name) {
+            return Ok(Some(i));
+        }
+        if declared {
+            let known: Vec<&str> = packages.iter().map(|p| p.name.as_str()).collect();
+            return Err(Bad::new(
+                key,
+                format!(
+                    "{what}: package `{name}` is not declared by a [[package]] entry (declared: {})",
+                    known.join(", ")
+                ),
+            )
+            .in_file(path));
+        }
+        packages.push(Package { name: name.clone(), sample_clock_hz: None, sample_and_hold: false });
+        Ok(Some(packages.len() - 1))
+    };
+    let mut package_of = Vec::new();
+    for (j, a) in file.accelerometer.iter().enumerate() {
+        package_of.push(find(format!("accelerometer[{j}].package"), &a.package, format!("accelerometer {}", j + 1))?);
+    }
+    let mut gyro_packages = Vec::new();
+    for (i, g) in file.gyroscope.iter().enumerate() {
+        gyro_packages.push(find(format!("gyroscope[{i}].package"), &g.package, format!("gyroscope {}", i + 1))?);
+    }
+    if packages.iter().any(Package::free_running) && package_of.iter().any(Option::is_none) {
+        let j = package_of.iter().position(Option::is_none).unwrap_or(0);
+        return Err(Bad::new(
+            format!("accelerometer[{j}].package"),
+            format!("accelerometer {}: names no package, but the array's packages declare sample clocks: every accelerometer must name its package", j + 1),
+        )
+        .in_file(path));
+    }
+    Ok((packages, package_of, gyro_packages))
 }
 
 fn build_array(path: &Path, file: &ArrayFile) -> Result<Array, ConfigError> {

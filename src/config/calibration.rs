@@ -16,6 +16,13 @@
 //! bias_ug = 50.0
 //! misalignment_deg = 0.01
 //! location_mm = 0.1
+//! velocity_err_m_s_p95_at_10s = 0.5   # or drift targets instead (`gfcal design`, by LinCov):
+//!                                     # <metric>_<median|p95>_at_<h>s, the metric in SI as in
+//!                                     # summary.csv; they need [trajectory] and [navigation]
+//!
+//! [trajectory]              # with drift targets: as for `drift`
+//! [navigation]              # with drift targets: the navigation's step
+//! step_s = 0.01
 //!
 //! [design]                  # gfcal design: the candidate pool and a limit
 //! spin_rates_rad_s = [3.14159, 6.28319, 12.56637]
@@ -27,9 +34,10 @@ use std::path::Path;
 use serde::Deserialize;
 
 use super::array::ArraySection;
-use super::errors::{ErrorSet, ErrorsSection};
+use super::error_set::{ErrorSet, ErrorsSection};
 use super::noise::NoiseSection;
 use super::schedule::ScheduleSection;
+use super::trajectory::TrajectorySection;
 use super::{Bad, ConfigError, positive, read_toml};
 use crate::array::Array;
 use crate::calib::Form;
@@ -37,6 +45,7 @@ use crate::calib::fisher::Targets;
 use crate::calib::joint::Start;
 use crate::calib::pose::PoseError;
 use crate::calib::schedule::Schedule;
+use crate::nav::Trajectory;
 use crate::sensor::noise::NoiseSpec;
 use crate::units::{RAD_PER_ARCSEC, STANDARD_GRAVITY_M_S2};
 
@@ -79,12 +88,39 @@ pub struct CalibrationSection {
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct TargetsSection {
     pub scale_factor_ppm: Option<f64>,
     pub bias_ug: Option<f64>,
     pub misalignment_deg: Option<f64>,
     pub location_mm: Option<f64>,
+    /// Every other key: a drift target (`<metric>_<median|p95>_at_<h>s`), or refused.
+    #[serde(flatten)]
+    pub drift: std::collections::BTreeMap<String, toml::Value>,
+}
+
+/// The drift metrics a drift target can name, in SI as summary.csv names them.
+pub const DRIFT_TARGET_METRICS: [&str; 4] =
+    ["rate_err_rad_s", "attitude_err_rad", "velocity_err_m_s", "position_err_m"];
+
+/// A target on a drift metric's quantile of the estimated compensation (`gfcal design`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DriftTarget {
+    /// The key as written, e.g. `velocity_err_m_s_p95_at_10s`.
+    pub key: String,
+    /// Index into [`DRIFT_TARGET_METRICS`].
+    pub metric: usize,
+    /// 0.5 (median) or 0.95 (p95).
+    pub quantile: f64,
+    pub horizon_s: f64,
+    /// SI, the metric's unit.
+    pub value: f64,
+}
+
+/// `[navigation]` of a calibration config with drift targets.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DesignNavigationSection {
+    pub step_s: f64,
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -110,6 +146,16 @@ pub struct CalibrationFile {
     pub targets: TargetsSection,
     #[serde(default)]
     pub design: DesignSection,
+    /// With drift targets: the trajectory and the navigation's step.
+    pub trajectory: Option<TrajectorySection>,
+    pub navigation: Option<DesignNavigationSection>,
+}
+
+/// The navigation a drift target is evaluated on.
+#[derive(Debug, Clone)]
+pub struct DriftNavigation {
+    pub trajectory: Trajectory,
+    pub step_s: f64,
 }
 
 /// Calibration settings in SI.
@@ -140,6 +186,10 @@ pub struct CalibrationConfig {
     pub schedule: Schedule,
     pub calibration: CalibrationSettings,
     pub targets: Targets,
+    /// Drift targets (`gfcal design` then designs for them instead of `targets`).
+    pub drift_targets: Vec<DriftTarget>,
+    /// The navigation of the drift targets (given with them).
+    pub drift_navigation: Option<DriftNavigation>,
     pub design: DesignSettings,
     pub text: String,
 }
@@ -196,6 +246,42 @@ impl TargetsSection {
     }
 }
 
+impl TargetsSection {
+    /// The drift targets among the section's keys; any other unknown key is refused.
+    pub fn drift_targets(&self) -> Result<Vec<DriftTarget>, Bad> {
+        let mut out = Vec::new();
+        for (key, value) in &self.drift {
+            let full = format!("targets.{key}");
+            let parsed = DRIFT_TARGET_METRICS.iter().enumerate().find_map(|(m, name)| {
+                let rest = key.strip_prefix(name)?.strip_prefix('_')?;
+                let (q, rest) = if let Some(r) = rest.strip_prefix("median_at_") {
+                    (0.5, r)
+                } else {
+                    (0.95, rest.strip_prefix("p95_at_")?)
+                };
+                let h: f64 = rest.strip_suffix('s')?.parse().ok()?;
+                Some((m, q, h))
+            });
+            let Some((metric, quantile, horizon_s)) = parsed else {
+                return Err(Bad::new(
+                    full,
+                    "unknown key: a target is scale_factor_ppm, bias_ug, misalignment_deg, location_mm, or a drift \
+                     target <metric>_<median|p95>_at_<h>s with metric rate_err_rad_s, attitude_err_rad, \
+                     velocity_err_m_s or position_err_m (e.g. velocity_err_m_s_p95_at_10s)",
+                ));
+            };
+            let value = value
+                .as_float()
+                .or_else(|| value.as_integer().map(|i| i as f64))
+                .ok_or_else(|| Bad::new(full.clone(), format!("must be a number, got {value}")))?;
+            positive(&full, horizon_s).map_err(|b| Bad::new(full.clone(), format!("its horizon {}", b.problem)))?;
+            positive(&full, value)?;
+            out.push(DriftTarget { key: key.clone(), metric, quantile, horizon_s, value });
+        }
+        Ok(out)
+    }
+}
+
 impl DesignSection {
     pub fn resolve(&self) -> Result<DesignSettings, Bad> {
         let pi = std::f64::consts::PI;
@@ -229,8 +315,45 @@ impl CalibrationConfig {
             );
         }
         let targets = file.targets.resolve().map_err(in_file)?;
+        let drift_targets = file.targets.drift_targets().map_err(in_file)?;
+        let drift_navigation = match (&file.trajectory, &file.navigation, drift_targets.is_empty()) {
+            (None, None, true) => None,
+            (_, _, true) => {
+                return Err(Bad::new(
+                    if file.trajectory.is_some() { "trajectory" } else { "navigation" },
+                    "is read only with a drift target in [targets] (e.g. velocity_err_m_s_p95_at_10s)",
+                )
+                .in_file(path));
+            }
+            (Some(t), Some(n), false) => {
+                let step_s = positive("navigation.step_s", n.step_s).map_err(in_file)?;
+                let last = drift_targets.iter().map(|d| d.horizon_s).fold(0.0, f64::max);
+                super::trajectory::check_navigation_work(step_s, &[last]).map_err(in_file)?;
+                Some(DriftNavigation { trajectory: t.build(last).map_err(in_file)?, step_s })
+            }
+            (None, _, false) => {
+                return Err(
+                    Bad::new("trajectory", "a drift target needs the [trajectory] it is navigated on").in_file(path)
+                );
+            }
+            (_, None, false) => {
+                return Err(Bad::new("navigation", "a drift target needs [navigation] step_s").in_file(path));
+            }
+        };
         let design = file.design.resolve().map_err(in_file)?;
-        Ok(Self { array, errors, noise, noise_seed, schedule, calibration, targets, design, text })
+        Ok(Self {
+            array,
+            errors,
+            noise,
+            noise_seed,
+            schedule,
+            calibration,
+            targets,
+            drift_targets,
+            drift_navigation,
+            design,
+            text,
+        })
     }
 
     /// White-noise density (input-referred, m/s^2/sqrt(Hz)): each step's per-sample sigma is

@@ -5,7 +5,7 @@ use std::path::Path;
 use serde::Deserialize;
 
 use super::array::ArraySection;
-use super::errors::{ErrorSet, ErrorsSection};
+use super::error_set::{ErrorSet, ErrorsSection};
 use super::noise::NoiseSection;
 use super::trajectory::{NavigationSection, NavigationSettings, TrajectorySection};
 use super::{ConfigError, read_toml};

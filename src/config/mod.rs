@@ -4,7 +4,7 @@
 pub mod array;
 pub mod calibration;
 pub mod drift;
-pub mod errors;
+pub mod error_set;
 pub mod noise;
 pub mod schedule;
 pub mod simulate_log;

@@ -29,14 +29,14 @@ use std::path::Path;
 use serde::Deserialize;
 
 use super::array::ArraySection;
-use super::errors::{ErrorSet, ErrorsSection};
+use super::error_set::{ErrorSet, ErrorsSection};
 use super::noise::NoiseSection;
 use super::schedule::ScheduleSection;
 use super::{Bad, ConfigError, OneOrEach, finite, positive, read_toml};
 use crate::array::Array;
 use crate::calib::schedule::Schedule;
 use crate::discrepancy::effect::by_name;
-use crate::discrepancy::simulate::{ActiveEffect, Temperature};
+use crate::discrepancy::log::{ActiveEffect, Temperature};
 use crate::sensor::noise::NoiseSpec;
 use crate::units::{M_PER_MM, M_S2_PER_UG, RAD_PER_DEG, STANDARD_GRAVITY_M_S2};
 

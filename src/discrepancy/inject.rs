@@ -31,8 +31,8 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use crate::array::wiring::RecordingArray;
 use crate::io::table::Table;
-use crate::selfcal::recording::RecordingArray;
 
 /// The effect `gfcal inject` adds to the gyroscopes' columns (with `--element`).
 pub const GYRO_EFFECT: &str = "gyro_scale_misalignment";
@@ -59,8 +59,11 @@ pub enum InjectError {
     Value(f64),
     #[error("{}: has no column `{column}` (accelerometer {j} of the array file {array})", path.display())]
     MissingColumn { path: std::path::PathBuf, column: String, j: usize, array: String },
-    #[error("{}: has no column `t_s`", path.display())]
-    NoTime { path: std::path::PathBuf },
+    #[error(
+        "{}: has no time column `{column}` (in seconds: the array file {array}'s `time_column`, default `t_s`)",
+        path.display()
+    )]
+    NoTime { path: std::path::PathBuf, column: String, array: String },
     #[error(
         "--effect cross_coupling: accelerometer {j} of {array} has no axis in its package (same position) along its first cross direction, which reads the force it couples to"
     )]
@@ -100,7 +103,14 @@ pub fn inject(
     }
     let j = accelerometer - 1;
     let column = array.accelerometer_columns[j].clone();
-    let t: Vec<f64> = table.column("t_s").ok_or_else(|| InjectError::NoTime { path: table.path.clone() })?.to_vec();
+    let t: Vec<f64> = table
+        .column(&array.time_column)
+        .ok_or_else(|| InjectError::NoTime {
+            path: table.path.clone(),
+            column: array.time_column.clone(),
+            array: array_name.clone(),
+        })?
+        .to_vec();
     let k = table.index(&column).ok_or_else(|| InjectError::MissingColumn {
         path: table.path.clone(),
         column: column.clone(),
@@ -219,7 +229,7 @@ pub fn inject_gyro(table: &mut Table, array: &RecordingArray, element: &str, val
 mod tests {
     use super::*;
     use crate::array::Array;
-    use crate::selfcal::recording::ReferenceGyro;
+    use crate::array::wiring::ReferenceGyro;
 
     /// A railed output's true value is unknown: it stays at the rail under every effect, and an
     /// output whose delay window reads it goes to the rail; outputs whose window is clear of it are
@@ -270,7 +280,7 @@ mod tests {
         array.gyroscopes = [Vector3::x(), Vector3::y(), Vector3::z()]
             .iter()
             .enumerate()
-            .map(|(i, a)| ReferenceGyro { axis: *a, column: format!("g{i}"), range_rad_s: 5.0 })
+            .map(|(i, a)| ReferenceGyro { axis: *a, column: format!("g{i}"), range_rad_s: 5.0, package: None })
             .collect();
         let mut g = Table {
             path: "r.csv".into(),
@@ -293,7 +303,12 @@ mod tests {
         array.gyroscopes = axes
             .iter()
             .enumerate()
-            .map(|(i, a)| ReferenceGyro { axis: *a, column: format!("g{i}"), range_rad_s: f64::INFINITY })
+            .map(|(i, a)| ReferenceGyro {
+                axis: *a,
+                column: format!("g{i}"),
+                range_rad_s: f64::INFINITY,
+                package: None,
+            })
             .collect();
         let rows = 50;
         let rate =

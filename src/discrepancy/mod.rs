@@ -1,5 +1,7 @@
 //! Model discrepancy: calibration logs, the library of physical effects the baseline model
-//! leaves out, and (later) their diagnosis.
+//! leaves out, and their diagnosis:
+//! [`log`] for calibration logs, [`recorded`] for real recordings, [`inject`] to add a known
+//! effect to a recording.
 //!
 //! The baseline model of a sample of accelerometer j is `s_j = k_j (b_j + u_j)`, with
 //! `u_j = a_j . f(r_j + dr_j)` and `f = g up + W r` in a static pose or a spin. An effect adds an
@@ -8,15 +10,10 @@
 //! is one module of [`effect`]: its term, its parameters, and its regressor (the gradient of the
 //! term by its parameters at zero, which is what a fit of the extended model uses).
 
-pub mod diagnose;
 pub mod effect;
+pub mod explanation;
 pub mod inject;
 pub mod log;
-pub mod projected;
 pub mod recorded;
-pub mod recorded_blocks;
-pub mod recorded_change;
-pub mod recorded_effect;
-pub mod recorded_sensing;
-pub mod recorded_trial;
-pub mod simulate;
+
+pub use explanation::Explanation;

@@ -1,7 +1,7 @@
 //! Files gfcal writes: written whole to a temporary name and renamed, so a reader never sees a
 //! half-written file.
 
-pub mod csv;
+pub mod format;
 pub mod guard;
 pub mod parquet;
 pub mod table;
@@ -10,11 +10,11 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// The name of this host (for file names and claims that several machines share).
+/// The name of this host (for file names and claims that several machines share), from the
+/// kernel (`/proc/sys/kernel/hostname`); "host" where the kernel does not say.
 pub fn host_name() -> String {
     std::fs::read_to_string("/proc/sys/kernel/hostname")
         .ok()
-        .or_else(|| std::env::var("HOSTNAME").ok())
         .map(|h| h.trim().to_string())
         .filter(|h| !h.is_empty())
         .unwrap_or_else(|| "host".to_string())

@@ -134,6 +134,11 @@ fn read_csv(path: &Path) -> Result<Table, TableError> {
     if names.iter().all(|n| n.is_empty()) {
         return Err(format("the file is empty (no header)".into()));
     }
+    if names.len() == 1
+        && let Some(problem) = other_separator(&names[0], bytes)
+    {
+        return Err(format(problem));
+    }
     let mut data = vec![Vec::new(); names.len()];
     let mut first_null_row = vec![None; names.len()];
     for (i, record) in reader.records().enumerate() {
@@ -143,6 +148,10 @@ fn read_csv(path: &Path) -> Result<Table, TableError> {
             row,
             column: "*".into(),
             problem: match e.kind() {
+                csv::ErrorKind::UnequalLengths { len, expected_len, .. } if len > expected_len => format!(
+                    "{len} fields, the header has {expected_len}: decimal commas (9,81) would split numbers in \
+                     two; gfcal reads numbers with a decimal point (9.81)"
+                ),
                 csv::ErrorKind::UnequalLengths { len, expected_len, .. } => {
                     format!("{len} fields, the header has {expected_len}")
                 }
@@ -158,13 +167,43 @@ fn read_csv(path: &Path) -> Result<Table, TableError> {
                     path: path.to_path_buf(),
                     row,
                     column: names[k].clone(),
-                    problem: format!("`{field}` is not a number"),
+                    problem: if field.replacen(',', ".", 1).parse::<f64>().is_ok() {
+                        format!("`{field}` is not a number: a decimal comma? gfcal reads a decimal point (9.81)")
+                    } else {
+                        format!("`{field}` is not a number")
+                    },
                 })?
             };
             data[k].push(v);
         }
     }
     Ok(Table { path: path.to_path_buf(), names, data, first_null_row })
+}
+
+/// A table the `csv` crate reads as one column: if its header is separated by semicolons or tabs,
+/// the problem in words (with whether its numbers have decimal commas), for a file many
+/// spreadsheets write in locales with a decimal comma.
+fn other_separator(header: &str, bytes: &[u8]) -> Option<String> {
+    let (separator, name) =
+        [(';', "semicolons (`;`)"), ('\t', "tabs")].into_iter().find(|(c, _)| header.contains(*c))?;
+    // The first data line: decimal commas show as a comma between two digits.
+    let text = String::from_utf8_lossy(&bytes[..bytes.len().min(64 * 1024)]);
+    let first = text.lines().nth(1).unwrap_or("");
+    let decimal_comma = first.split(separator).any(|f| {
+        f.trim().split_once(',').is_some_and(|(a, b)| {
+            a.ends_with(|c: char| c.is_ascii_digit()) && b.starts_with(|c: char| c.is_ascii_digit())
+        })
+    });
+    let shown: String = header.chars().take(60).collect();
+    let sep = if separator == ';' { ";" } else { "\\t" };
+    Some(format!(
+        "the header `{shown}{}` is separated by {name}, not commas{}: gfcal reads CSV as comma-separated values with \
+         a decimal point (9.81); write it so (pandas: `pd.read_csv(f, sep=\"{sep}\"{}).to_csv(out, index=False)`), \
+         or as Parquet",
+        if header.chars().count() > 60 { "..." } else { "" },
+        if decimal_comma { ", and its numbers have decimal commas (9,81)" } else { "" },
+        if decimal_comma { ", decimal=\",\"" } else { "" },
+    ))
 }
 
 /// Reads a Parquet table; the decoder's panic on a damaged file is an error (see `io::guard`).

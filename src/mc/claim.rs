@@ -6,7 +6,8 @@
 //! - `DIR/.gfcal-run.lock`: every process writing the folder holds it shared for its whole run.
 //!   A process that gets it exclusively is alone: it may create, refuse, clear or clean up the
 //!   folder, then shares it. A process that cannot get it exclusively joins the run in progress
-//!   (and is refused if its config differs).
+//!   (and is refused if its config differs). The last process to leave removes it (and the
+//!   emptied `locks/` folder); a process that locked a file removed meanwhile opens the new one.
 //! - `DIR/locks/part-NNNNNN.lock`: held exclusively by the one process computing that part, and
 //!   removed once the part's files are written. A process that cannot take it leaves the part to
 //!   its holder; one that takes it checks again that the part is not done before running it.
@@ -49,18 +50,44 @@ fn open_lock_file(path: &Path) -> std::io::Result<File> {
     OpenOptions::new().read(true).write(true).create(true).truncate(false).open(path)
 }
 
+/// Whether the lock file we hold is still the one at `path` (the last process to leave a run
+/// removes the file: a lock taken on a removed file locks nothing that others can see).
+#[cfg(unix)]
+fn still_at(file: &File, path: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (file.metadata(), std::fs::metadata(path)) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
+    }
+}
+
+#[cfg(not(unix))]
+fn still_at(_file: &File, path: &Path) -> bool {
+    path.exists()
+}
+
 /// Enters the run folder `dir` (which must exist): exclusively if no other process holds it,
 /// otherwise shared, waiting until the process that has it exclusively has prepared it.
 pub fn enter(dir: &Path) -> std::io::Result<Entry> {
     let path = dir.join(".gfcal-run.lock");
-    let file = open_lock_file(&path)?;
-    match file.try_lock() {
-        Ok(()) => Ok(Entry::Alone(RunLock { file, path })),
-        Err(TryLockError::WouldBlock) => {
-            file.lock_shared().map_err(|e| unsupported(&path, e))?;
-            Ok(Entry::Joining(RunLock { file, path }))
+    loop {
+        let file = open_lock_file(&path)?;
+        let entry = match file.try_lock() {
+            Ok(()) => Entry::Alone(RunLock { file, path: path.clone() }),
+            Err(TryLockError::WouldBlock) => {
+                file.lock_shared().map_err(|e| unsupported(&path, e))?;
+                Entry::Joining(RunLock { file, path: path.clone() })
+            }
+            Err(TryLockError::Error(e)) => return Err(unsupported(&path, e)),
+        };
+        // The file was removed (by the last process leaving) between opening and locking it:
+        // open the one that is there now.
+        let lock = match &entry {
+            Entry::Alone(l) | Entry::Joining(l) => l,
+        };
+        if still_at(&lock.file, &path) {
+            return Ok(entry);
         }
-        Err(TryLockError::Error(e)) => Err(unsupported(&path, e)),
     }
 }
 
@@ -69,6 +96,17 @@ impl RunLock {
     pub fn share(self) -> std::io::Result<RunLock> {
         self.file.lock_shared().map_err(|e| unsupported(&self.path, e))?;
         Ok(self)
+    }
+
+    /// Leaves the run folder `dir`. The last process to leave (the one that can take the lock
+    /// exclusively: no other is writing) removes the lock file and the `locks/` folder if empty,
+    /// so a finished run leaves neither behind; the others leave them to it.
+    pub fn leave(self, dir: &Path) {
+        if self.file.try_lock().is_ok() {
+            let _ = std::fs::remove_dir(dir.join("locks"));
+            let _ = std::fs::remove_file(&self.path);
+        }
+        drop(self.file);
     }
 }
 
@@ -120,6 +158,18 @@ impl Drop for PartClaim {
     }
 }
 
+/// Removes the lock file and the emptied `locks/` folder of the run in `dir` when no process holds
+/// it (`gfcal summarize` after a job array's last task: two tasks that left at the same moment may
+/// each have seen the other still in).
+pub fn tidy(dir: &Path) {
+    let path = dir.join(".gfcal-run.lock");
+    if let Ok(file) = OpenOptions::new().read(true).write(true).open(&path)
+        && still_at(&file, &path)
+    {
+        RunLock { file, path }.leave(dir);
+    }
+}
+
 /// Whether another process is writing the run in `dir` now (holds its folder lock).
 pub fn in_use(dir: &Path) -> bool {
     let path = dir.join(".gfcal-run.lock");
@@ -140,6 +190,22 @@ mod tests {
         first.release();
         assert!(!part_lock_path(dir.path(), 3).exists());
         assert!(claim_part(dir.path(), 3).expect("lock").is_some());
+    }
+
+    #[test]
+    fn the_last_to_leave_removes_the_lock_file_and_the_empty_locks_folder() {
+        let dir = tempfile::tempdir().expect("temporary folder");
+        let Entry::Alone(first) = enter(dir.path()).expect("lock") else { panic!("the first is alone") };
+        let first = first.share().expect("share");
+        claim_part(dir.path(), 0).expect("lock").expect("free part").release();
+        let Entry::Joining(second) = enter(dir.path()).expect("lock") else { panic!("the second joins") };
+        first.leave(dir.path());
+        assert!(dir.path().join(".gfcal-run.lock").exists(), "another process is still in");
+        second.leave(dir.path());
+        assert!(!dir.path().join(".gfcal-run.lock").exists());
+        assert!(!dir.path().join("locks").exists());
+        // A process that had opened the removed file enters the new one, alone.
+        assert!(matches!(enter(dir.path()).expect("lock"), Entry::Alone(_)));
     }
 
     #[test]

@@ -257,6 +257,31 @@ pub struct McConfig {
     pub text: String,
 }
 
+/// A run of this config holds every cell in memory (its checked setup, its preparation and its
+/// summary's accumulators); a sweep whose cells would take more than this is refused before
+/// anything is expanded, with the cell count and the estimate.
+pub const MAX_SWEEP_BYTES: u64 = 2_000_000_000;
+
+/// The memory a run holds per cell of an array of `accelerometers` (bytes): a fixed part and one
+/// that grows with the parameters (7 per accelerometer), from the peak RSS of `gfcal run` on
+/// sweeps of one trial a cell (release, 2026-11-25): the cube 58.7 KB a cell (1,024 and 4,096
+/// cells), the 24-axis MIMU4444 array 184.6 KB (256 and 1,024 cells). About 8 KB of it is the
+/// checked cell; most is the summary (per cell and parameter, its accumulators and its rows).
+pub fn bytes_per_cell(accelerometers: usize) -> u64 {
+    BYTES_PER_CELL_FIXED + BYTES_PER_CELL_PER_ACCELEROMETER * accelerometers as u64
+}
+const BYTES_PER_CELL_FIXED: u64 = 17_000;
+const BYTES_PER_CELL_PER_ACCELEROMETER: u64 = 7_000;
+
+/// What `gfcal check` says of a run config, found cell by cell without holding the cells.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunShape {
+    pub name: String,
+    pub cells: u64,
+    pub trials_per_cell: u64,
+    pub parts: u64,
+}
+
 impl McConfig {
     pub fn total_trials(&self) -> u64 {
         self.trials_per_cell * self.cells.len() as u64
@@ -276,10 +301,66 @@ impl McConfig {
     /// Reads and checks a run config given as text; `path` names it in messages and anchors
     /// relative files.
     pub fn from_text(text: String, path: &Path) -> Result<Self, ConfigError> {
-        let base: toml::Table = toml::from_str(&text)
+        let plan = Plan::new(&text, path)?;
+        let mut cells = Vec::with_capacity(plan.assignments.len());
+        let mut saltelli = SaltelliInputs::default();
+        for index in 0..plan.assignments.len() {
+            let cell = plan.cell(index)?;
+            saltelli.see(&plan, &cell)?;
+            cells.push(cell);
+        }
+        let trials_per_cell = plan.trials_per_cell(&saltelli)?;
+        if let (Some(s), Some(inputs)) = (&plan.file.sensitivity, saltelli.inputs) {
+            for (i, c) in cells.iter_mut().enumerate() {
+                c.saltelli = Some(Saltelli {
+                    base_samples: s.base_samples,
+                    inputs: inputs.clone(),
+                    first_trial: i as u64 * trials_per_cell,
+                });
+            }
+        }
+        let Plan { name, file, trials_per_part, factor_keys, .. } = plan;
+        Ok(Self { name, seed: file.seed, trials_per_cell, trials_per_part, factor_keys, cells, text })
+    }
+
+    /// Checks a run config as [`McConfig::load`] does, every cell of its sweep included, but one
+    /// cell at a time: memory stays that of one cell whatever the sweep's size.
+    pub fn check(path: &Path) -> Result<RunShape, ConfigError> {
+        let text =
+            std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
+        let plan = Plan::new(&text, path)?;
+        let mut saltelli = SaltelliInputs::default();
+        for index in 0..plan.assignments.len() {
+            let cell = plan.cell(index)?;
+            saltelli.see(&plan, &cell)?;
+        }
+        let trials_per_cell = plan.trials_per_cell(&saltelli)?;
+        let cells = plan.assignments.len() as u64;
+        let parts = (cells * trials_per_cell).div_ceil(plan.trials_per_part);
+        Ok(RunShape { name: plan.name, cells, trials_per_cell, parts })
+    }
+}
+
+/// A run config read and checked up to its cells: the cells are built from it one by one.
+struct Plan<'a> {
+    path: &'a Path,
+    /// The file as a table, without its `[sweep]`: each cell is this with its factors set.
+    base: toml::Table,
+    file: McFile,
+    name: String,
+    trials_per_part: u64,
+    factor_keys: Vec<String>,
+    /// Each cell's factor values (bounded: the sweep's size is checked before they are made).
+    assignments: Vec<Vec<FactorValue>>,
+}
+
+impl<'a> Plan<'a> {
+    fn new(text: &str, path: &'a Path) -> Result<Self, ConfigError> {
+        let mut base: toml::Table = toml::from_str(text)
             .map_err(|e| ConfigError::Parse { path: path.to_path_buf(), message: e.to_string() })?;
+        base.remove("sweep");
         // Read from the text itself (not the table), so that an error names its line.
-        let file: McFile = toml::from_str(&text)
+        let file: McFile = toml::from_str(text)
             .map_err(|e: toml::de::Error| ConfigError::Parse { path: path.to_path_buf(), message: e.to_string() })?;
         let bad = |b: Bad| b.in_file(path);
         if let Some(s) = &file.sensitivity {
@@ -310,80 +391,122 @@ impl McConfig {
         }
         let (factor_keys, assignments) = match &file.sweep {
             None => (vec![], vec![vec![]]),
-            Some(s) => sweep_cells(s, file.seed).map_err(bad)?,
-        };
-        let mut cells = Vec::with_capacity(assignments.len());
-        for (index, values) in assignments.into_iter().enumerate() {
-            let mut doc = base.clone();
-            doc.remove("sweep");
-            for (key, value) in factor_keys.iter().zip(&values) {
-                set_dotted(&mut doc, key, toml_value(value))
-                    .map_err(|p| bad(Bad::new(format!("sweep.factor `{key}`"), p)))?;
-            }
-            let describe = || {
-                factor_keys
-                    .iter()
-                    .zip(&values)
-                    .map(|(k, v)| format!("{k} = {}", fmt_value(v)))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            };
-            let cell_file: McFile = doc.try_into().map_err(|e: toml::de::Error| ConfigError::Parse {
-                path: path.to_path_buf(),
-                message: format!("in the sweep cell with {}: {}", describe(), e.message()),
-            })?;
-            let cell = build_cell(&cell_file, path, index, factor_keys.iter().cloned().zip(values.clone()).collect())
-                .map_err(|e| match e {
-                ConfigError::Invalid { path, key, problem } if !factor_keys.is_empty() => ConfigError::Invalid {
-                    path,
-                    key,
-                    problem: format!("{problem} (in the sweep cell with {})", describe()),
-                },
-                other => other,
-            })?;
-            cells.push(cell);
-        }
-        let trials_per_cell = match &file.sensitivity {
-            None => file.trials_per_cell.unwrap_or(1),
             Some(s) => {
-                let inputs = cells[0].errors.varying(&cells[0].layout);
-                if inputs.is_empty() {
+                let design = SweepDesign::new(s).map_err(bad)?;
+                // The size first, from the design alone: a sweep too large to hold is refused
+                // before any cell (or any design point) is made.
+                let accelerometers = file.array.build(path).map(|a| a.len()).unwrap_or(6);
+                design.check_size(accelerometers).map_err(bad)?;
+                (design.keys(), design.expand(file.seed))
+            }
+        };
+        Ok(Self { path, base, file, name, trials_per_part, factor_keys, assignments })
+    }
+
+    /// Builds and checks cell `index`.
+    fn cell(&self, index: usize) -> Result<Cell, ConfigError> {
+        let path = self.path;
+        let bad = |b: Bad| b.in_file(path);
+        let values = &self.assignments[index];
+        let mut doc = self.base.clone();
+        for (key, value) in self.factor_keys.iter().zip(values) {
+            set_dotted(&mut doc, key, toml_value(value))
+                .map_err(|p| bad(Bad::new(format!("sweep.factor `{key}`"), p)))?;
+        }
+        let describe = || describe_values(&self.factor_keys, values);
+        let cell_file: McFile = doc.try_into().map_err(|e: toml::de::Error| ConfigError::Parse {
+            path: path.to_path_buf(),
+            message: format!("in the sweep cell with {}: {}", describe(), e.message()),
+        })?;
+        let factors = self.factor_keys.iter().cloned().zip(values.iter().cloned()).collect();
+        build_cell(&cell_file, path, index, factors).map_err(|e| match e {
+            ConfigError::Invalid { path, key, problem } if !self.factor_keys.is_empty() => ConfigError::Invalid {
+                path,
+                key,
+                problem: format!("{problem} (in the sweep cell with {})", describe()),
+            },
+            other => other,
+        })
+    }
+
+    /// Trials per cell (set by the Saltelli design when there is one), with the run's total
+    /// checked to fit in 64 bits.
+    fn trials_per_cell(&self, saltelli: &SaltelliInputs) -> Result<u64, ConfigError> {
+        let bad = |b: Bad| b.in_file(self.path);
+        let per_cell = match (&self.file.sensitivity, &saltelli.inputs) {
+            (Some(s), Some(inputs)) => s.base_samples * (inputs.len() as u64 + 2),
+            _ => self.file.trials_per_cell.unwrap_or(1),
+        };
+        if per_cell.checked_mul(self.assignments.len() as u64).is_none() {
+            return Err(bad(Bad::new(
+                "trials_per_cell",
+                format!(
+                    "{per_cell} trials in each of {} cells: more trials than gfcal can count",
+                    self.assignments.len()
+                ),
+            )));
+        }
+        Ok(per_cell)
+    }
+}
+
+/// The varying error parameters of a Saltelli design: the same in every cell.
+#[derive(Default)]
+struct SaltelliInputs {
+    inputs: Option<Vec<usize>>,
+}
+
+impl SaltelliInputs {
+    fn see(&mut self, plan: &Plan, c: &Cell) -> Result<(), ConfigError> {
+        if plan.file.sensitivity.is_none() {
+            return Ok(());
+        }
+        let bad = |b: Bad| b.in_file(plan.path);
+        if c.protocol.is_some() {
+            return Err(bad(Bad::new("sensitivity.design", "a Saltelli design is not available with [protocol]")));
+        }
+        let varying = c.errors.varying(&c.layout);
+        match &self.inputs {
+            None => {
+                if varying.is_empty() {
                     return Err(bad(Bad::new(
                         "sensitivity",
                         "no error parameter varies between trials: a Saltelli design has nothing to attribute",
                     )));
                 }
-                if let Some(c) = cells.iter().find(|c| c.errors.varying(&c.layout) != inputs) {
-                    return Err(bad(Bad::new(
-                        "sensitivity",
-                        format!(
-                            "the sweep cell with {} varies other error parameters than cell 0; a Saltelli design \
-                             needs the same inputs in every cell",
-                            c.factors
-                                .iter()
-                                .map(|(k, v)| format!("{k} = {}", fmt_value(v)))
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        ),
-                    )));
-                }
-                if cells.iter().any(|c| c.protocol.is_some()) {
-                    return Err(Bad::new("sensitivity.design", "a Saltelli design is not available with [protocol]")
-                        .in_file(path));
-                }
-                let per_cell = s.base_samples * (inputs.len() as u64 + 2);
-                for (i, c) in cells.iter_mut().enumerate() {
-                    c.saltelli = Some(Saltelli {
-                        base_samples: s.base_samples,
-                        inputs: inputs.clone(),
-                        first_trial: i as u64 * per_cell,
-                    });
-                }
-                per_cell
+                self.inputs = Some(varying);
             }
-        };
-        Ok(Self { name, seed: file.seed, trials_per_cell, trials_per_part, factor_keys, cells, text })
+            Some(first) if *first != varying => {
+                return Err(bad(Bad::new(
+                    "sensitivity",
+                    format!(
+                        "the sweep cell with {} varies other error parameters than cell 0; a Saltelli design \
+                         needs the same inputs in every cell",
+                        c.factors.iter().map(|(k, v)| format!("{k} = {}", fmt_value(v))).collect::<Vec<_>>().join(", ")
+                    ),
+                )));
+            }
+            Some(_) => {}
+        }
+        Ok(())
     }
+}
+
+fn describe_values(keys: &[String], values: &[FactorValue]) -> String {
+    keys.iter().zip(values).map(|(k, v)| format!("{k} = {}", fmt_value(v))).collect::<Vec<_>>().join(", ")
+}
+
+/// `n` with thousands separators: 10,004,569.
+fn thousands(n: u64) -> String {
+    let digits = n.to_string();
+    let mut out = String::new();
+    for (i, ch) in digits.chars().enumerate() {
+        if i > 0 && (digits.len() - i).is_multiple_of(3) {
+            out.push(',');
+        }
+        out.push(ch);
+    }
+    out
 }
 
 fn fmt_value(v: &FactorValue) -> String {
@@ -421,96 +544,174 @@ fn set_dotted(doc: &mut toml::Table, key: &str, value: toml::Value) -> Result<()
     Ok(())
 }
 
-type Assignments = (Vec<String>, Vec<Vec<FactorValue>>);
+/// A sweep's factors, checked, before any cell is made.
+struct SweepDesign<'a> {
+    section: &'a SweepSection,
+    /// Listed factors: (index among the factors, levels).
+    listed: Vec<(usize, Vec<FactorValue>)>,
+    /// Continuous factors: (index, low, high, scale).
+    continuous: Vec<(usize, f64, f64, Scale)>,
+    /// Space-filling points (1 without continuous factors).
+    points: usize,
+}
 
-fn sweep_cells(s: &SweepSection, seed: u64) -> Result<Assignments, Bad> {
-    if s.factor.is_empty() {
-        return Err(Bad::new("sweep.factor", "a sweep needs at least one [[sweep.factor]] (or no [sweep] at all)"));
-    }
-    let mut listed: Vec<(usize, Vec<FactorValue>)> = Vec::new();
-    let mut continuous: Vec<(usize, f64, f64, Scale)> = Vec::new();
-    for (i, f) in s.factor.iter().enumerate() {
-        let key = |k: &str| format!("sweep.factor[{i}].{k}");
-        if f.key.trim().is_empty() {
-            return Err(Bad::new(key("key"), "is empty"));
+impl<'a> SweepDesign<'a> {
+    fn new(s: &'a SweepSection) -> Result<Self, Bad> {
+        if s.factor.is_empty() {
+            return Err(Bad::new("sweep.factor", "a sweep needs at least one [[sweep.factor]] (or no [sweep] at all)"));
         }
-        match (&f.levels, f.low, f.high) {
-            (Some(levels), None, None) => {
-                if levels.is_empty() {
-                    return Err(Bad::new(key("levels"), "is empty: give at least one level"));
-                }
-                let vals = levels
-                    .iter()
-                    .map(|v| match v {
-                        toml::Value::Float(x) => Ok(FactorValue::Number(*x)),
-                        toml::Value::Integer(x) => Ok(FactorValue::Number(*x as f64)),
-                        toml::Value::String(t) => Ok(FactorValue::Text(t.clone())),
-                        other => Err(Bad::new(key("levels"), format!("levels are numbers or strings, got {other}"))),
-                    })
-                    .collect::<Result<Vec<_>, _>>()?;
-                listed.push((i, vals));
+        let mut listed: Vec<(usize, Vec<FactorValue>)> = Vec::new();
+        let mut continuous: Vec<(usize, f64, f64, Scale)> = Vec::new();
+        for (i, f) in s.factor.iter().enumerate() {
+            let key = |k: &str| format!("sweep.factor[{i}].{k}");
+            if f.key.trim().is_empty() {
+                return Err(Bad::new(key("key"), "is empty"));
             }
-            (None, Some(lo), Some(hi)) => {
-                if s.design == DesignKind::Factorial {
-                    return Err(Bad::new(
-                        key("low"),
-                        "a continuous factor needs design = \"latin_hypercube\" or \"sobol\"",
-                    ));
-                }
-                finite(&key("low"), lo)?;
-                finite(&key("high"), hi)?;
-                if hi <= lo {
-                    return Err(Bad::new(key("high"), format!("must be above low ({lo}), got {hi}")));
-                }
-                let scale = f.scale.unwrap_or_default();
-                if scale == Scale::Log && lo <= 0.0 {
-                    return Err(Bad::new(key("low"), "a log scale needs low > 0"));
-                }
-                continuous.push((i, lo, hi, scale));
+            if f.key == "name" {
+                // summary.csv has a column `name`, and the name is the folder's: one per run.
+                return Err(Bad::new(
+                    key("key"),
+                    "`name` names the run's results folder: it cannot vary between cells",
+                ));
             }
-            _ => return Err(Bad::new(format!("sweep.factor[{i}]"), "give either `levels`, or `low` and `high`")),
+            match (&f.levels, f.low, f.high) {
+                (Some(levels), None, None) => {
+                    if levels.is_empty() {
+                        return Err(Bad::new(key("levels"), "is empty: give at least one level"));
+                    }
+                    let vals = levels
+                        .iter()
+                        .map(|v| match v {
+                            toml::Value::Float(x) => Ok(FactorValue::Number(*x)),
+                            toml::Value::Integer(x) => Ok(FactorValue::Number(*x as f64)),
+                            toml::Value::String(t) => Ok(FactorValue::Text(t.clone())),
+                            other => {
+                                Err(Bad::new(key("levels"), format!("levels are numbers or strings, got {other}")))
+                            }
+                        })
+                        .collect::<Result<Vec<_>, _>>()?;
+                    listed.push((i, vals));
+                }
+                (None, Some(lo), Some(hi)) => {
+                    if s.design == DesignKind::Factorial {
+                        return Err(Bad::new(
+                            key("low"),
+                            "a continuous factor needs design = \"latin_hypercube\" or \"sobol\"",
+                        ));
+                    }
+                    finite(&key("low"), lo)?;
+                    finite(&key("high"), hi)?;
+                    if hi <= lo {
+                        return Err(Bad::new(key("high"), format!("must be above low ({lo}), got {hi}")));
+                    }
+                    let scale = f.scale.unwrap_or_default();
+                    if scale == Scale::Log && lo <= 0.0 {
+                        return Err(Bad::new(key("low"), "a log scale needs low > 0"));
+                    }
+                    continuous.push((i, lo, hi, scale));
+                }
+                _ => return Err(Bad::new(format!("sweep.factor[{i}]"), "give either `levels`, or `low` and `high`")),
+            }
         }
-    }
-    let points = if continuous.is_empty() {
-        vec![vec![]]
-    } else {
-        let n = s.points.ok_or_else(|| Bad::new("sweep.points", "needed with continuous factors"))?;
-        if n == 0 {
-            return Err(Bad::new("sweep.points", "must be at least 1"));
-        }
-        let mut rng = crate::rng::trial_rng(seed ^ 0x5357_4545_5000, 0);
-        let unit = match s.design {
-            DesignKind::LatinHypercube => latin_hypercube(n, continuous.len(), &mut rng),
-            _ => sobol(n, continuous.len(), (seed & 0xffff_ffff) as u32),
+        let points = if continuous.is_empty() {
+            1
+        } else {
+            let n = s.points.ok_or_else(|| Bad::new("sweep.points", "needed with continuous factors"))?;
+            if n == 0 {
+                return Err(Bad::new("sweep.points", "must be at least 1"));
+            }
+            n
         };
-        unit.into_iter()
-            .map(|u| {
-                u.iter()
-                    .zip(&continuous)
-                    .map(|(u, (_, lo, hi, scale))| match scale {
-                        Scale::Linear => lo + u * (hi - lo),
-                        Scale::Log => (lo.ln() + u * (hi.ln() - lo.ln())).exp(),
-                    })
-                    .collect()
-            })
-            .collect()
-    };
-    let combos = factorial(&listed.iter().map(|(_, v)| v.len()).collect::<Vec<_>>());
-    let keys: Vec<String> = s.factor.iter().map(|f| f.key.clone()).collect();
-    let mut cells = Vec::new();
-    for combo in &combos {
-        for point in &points {
-            let mut values = vec![FactorValue::Number(f64::NAN); keys.len()];
-            for ((i, levels), &l) in listed.iter().zip(combo) {
-                values[*i] = levels[l].clone();
-            }
-            for ((i, ..), v) in continuous.iter().zip(point) {
-                values[*i] = FactorValue::Number(*v);
-            }
-            cells.push(values);
-        }
+        Ok(Self { section: s, listed, continuous, points })
     }
-    Ok((keys, cells))
+
+    fn keys(&self) -> Vec<String> {
+        self.section.factor.iter().map(|f| f.key.clone()).collect()
+    }
+
+    /// The number of cells, by arithmetic (`None` beyond 64 bits).
+    fn cells(&self) -> Option<u64> {
+        self.listed.iter().try_fold(self.points as u64, |n, (_, levels)| n.checked_mul(levels.len() as u64))
+    }
+
+    /// Refuses a sweep whose cells a run could not hold (see [`MAX_SWEEP_BYTES`]).
+    fn check_size(&self, accelerometers: usize) -> Result<(), Bad> {
+        let per_cell = bytes_per_cell(accelerometers);
+        let max_cells = MAX_SWEEP_BYTES / per_cell;
+        let cells = self.cells();
+        if cells.is_some_and(|n| n <= max_cells) {
+            return Ok(());
+        }
+        let mut how: Vec<String> = Vec::new();
+        if !self.listed.is_empty() {
+            let levels: Vec<String> = self.listed.iter().map(|(_, l)| l.len().to_string()).collect();
+            how.push(format!("levels {}", levels.join(" x ")));
+        }
+        if !self.continuous.is_empty() {
+            how.push(format!("{} points", thousands(self.points as u64)));
+        }
+        let count = match cells {
+            Some(n) => format!("{} cells", thousands(n)),
+            None => "more than 2^64 cells".into(),
+        };
+        let total_gb = cells.map_or(f64::INFINITY, |n| n as f64 * per_cell as f64 / 1e9);
+        Err(Bad::new(
+            "sweep",
+            format!(
+                "{count} ({}): a run holds every cell (its checked setup, its preparation and its summary) in \
+                 memory, about {} KB a cell of {accelerometers} accelerometers, so {total_gb:.0} GB for this sweep, \
+                 more than the {} GB gfcal allows ({} cells at most); sweep fewer levels or points, or split the \
+                 sweep over several configs",
+                how.join(" x "),
+                per_cell / 1000,
+                MAX_SWEEP_BYTES / 1_000_000_000,
+                thousands(max_cells)
+            ),
+        ))
+    }
+
+    /// Every cell's factor values: the listed levels crossed factorially (the last factor
+    /// fastest), then, within each combination, the space-filling points.
+    fn expand(&self, seed: u64) -> Vec<Vec<FactorValue>> {
+        let (listed, continuous) = (&self.listed, &self.continuous);
+        let points: Vec<Vec<f64>> = if continuous.is_empty() {
+            vec![vec![]]
+        } else {
+            let n = self.points;
+            let mut rng = crate::rng::trial_rng(seed ^ 0x5357_4545_5000, 0);
+            let unit = match self.section.design {
+                DesignKind::LatinHypercube => latin_hypercube(n, continuous.len(), &mut rng),
+                _ => sobol(n, continuous.len(), (seed & 0xffff_ffff) as u32),
+            };
+            unit.into_iter()
+                .map(|u| {
+                    u.iter()
+                        .zip(continuous)
+                        .map(|(u, (_, lo, hi, scale))| match scale {
+                            Scale::Linear => lo + u * (hi - lo),
+                            Scale::Log => (lo.ln() + u * (hi.ln() - lo.ln())).exp(),
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        let combos = factorial(&listed.iter().map(|(_, v)| v.len()).collect::<Vec<_>>());
+        let k = self.section.factor.len();
+        let mut cells = Vec::with_capacity(combos.len() * points.len());
+        for combo in &combos {
+            for point in &points {
+                let mut values = vec![FactorValue::Number(f64::NAN); k];
+                for ((i, levels), &l) in listed.iter().zip(combo) {
+                    values[*i] = levels[l].clone();
+                }
+                for ((i, ..), v) in continuous.iter().zip(point) {
+                    values[*i] = FactorValue::Number(*v);
+                }
+                cells.push(values);
+            }
+        }
+        cells
+    }
 }
 
 fn dist<T: Clone>(
@@ -622,7 +823,7 @@ fn build_cell(f: &McFile, path: &Path, index: usize, factors: Vec<(String, Facto
                 Some(file) => {
                     crate::config::array::load_recording_array(&path.parent().unwrap_or(Path::new(".")).join(file))?
                 }
-                None => crate::selfcal::recording::RecordingArray::plain(array.clone(), path),
+                None => crate::array::wiring::RecordingArray::plain(array.clone(), path),
             };
             let sigma = noise.white.sigma_m_s2(p.sample_rate_hz);
             let cell = p.resolve(recording_array, sigma, calibration.gravity_m_s2).map_err(bad)?;

@@ -12,6 +12,8 @@
 pub mod claim;
 pub mod config;
 pub mod design;
+pub mod outcome;
+pub mod output;
 pub mod protocol;
 pub mod runner;
 pub mod sample;

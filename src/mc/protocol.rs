@@ -15,6 +15,28 @@
 //! gyro_noise_sigma_rad_s = 0.01
 //! ```
 //!
+//! The real board's physics (issue 28), all off by default (then every recording is today's, bit
+//! for bit):
+//!
+//! ```toml
+//! motion_band_hz = [3.5, 5.5]           # band of the smooth rotation and acceleration (default [0.3, 2.0])
+//! accel_band_hz = [0.3, 3.0]            # band of the smooth acceleration alone (default: motion_band_hz)
+//! vibration_rms_m_s2 = 30.0             # broadband translational vibration, RMS (3 axes together)
+//! vibration_rate_rms_rad_s = 0.0        # broadband angular vibration, RMS
+//! vibration_rate_band_hz = [2.0, 15.0]  # its own band (default: vibration_band_hz)
+//! vibration_band_hz = [2.0, 50.0]       # its band: 1st-order high-pass, 2nd-order Butterworth low-pass
+//! vibration_rate_exponent = 0.0         # its RMS goes as (|rate| / rate_rms_rad_s)^k (0: stationary)
+//! sample_clocks = true                  # packages with sample_clock_hz + sample_and_hold sample on their own clocks
+//! clock_rate_offset_ppm = { dist = "normal", sigma = 1300.0 }       # per package (also uniform, fixed)
+//! clock_common_rate_offset_ppm = { dist = "normal", sigma = 65.0 }  # per recording, every package
+//! clock_drift_ppm_per_s = { dist = "uniform", half_width = 0.25 }   # per recording, every package
+//! anti_alias_time_constant_ms = 0.0     # first-order filter before each accelerometer's sampling
+//! gyro_anti_alias_time_constant_ms = 0.0   # the gyroscopes' (default: the accelerometers')
+//! ```
+//!
+//! A `fixed` clock distribution takes `value`: one number for every package or one per package
+//! of the array file. Phases are uniform over one clock period.
+//!
 //! The array is an array file (`[array] file = ...`; its ranges clip the simulated outputs), the
 //! form is `tilt` (the parameters of `gfcal calibrate`), and `[noise]` gives the white noise of
 //! one sample at the protocol's rate. Each trial draws its errors from `[errors]`, moves them onto
@@ -26,12 +48,14 @@ use nalgebra::DVector;
 use rand::Rng;
 use serde::Deserialize;
 
+use crate::array::wiring::RecordingArray;
 use crate::calib::params::Layout;
 use crate::calib::{Estimate, FitStatus};
-use crate::config::{Bad, positive};
+use crate::config::{Bad, OneOrEach, finite, positive};
 use crate::selfcal::calibrate::{CalibrateSettings, calibrate};
 use crate::selfcal::model::{PER_ACCEL, SensorSet};
-use crate::selfcal::recording::RecordingArray;
+use crate::selfcal::sampling::{ClockSpread, Spread};
+use crate::selfcal::simulate::{AntiAlias, FINE_STEP_S, MOTION_BAND_HZ, VIBRATION_BAND_HZ, Vibration};
 use crate::selfcal::simulate::{Protocol, bound_at_truth, project_to_gauge, simulate};
 
 #[derive(Debug, Clone, Deserialize)]
@@ -47,6 +71,118 @@ pub struct ProtocolSection {
     #[serde(default)]
     pub use_gyro: bool,
     pub gyro_noise_sigma_rad_s: Option<f64>,
+    pub motion_band_hz: Option<[f64; 2]>,
+    pub accel_band_hz: Option<[f64; 2]>,
+    pub vibration_rms_m_s2: Option<f64>,
+    pub vibration_rate_rms_rad_s: Option<f64>,
+    pub vibration_band_hz: Option<[f64; 2]>,
+    pub vibration_rate_exponent: Option<f64>,
+    pub vibration_rate_band_hz: Option<[f64; 2]>,
+    #[serde(default)]
+    pub sample_clocks: bool,
+    pub clock_rate_offset_ppm: Option<ClockDist>,
+    pub clock_common_rate_offset_ppm: Option<ClockDist>,
+    pub clock_drift_ppm_per_s: Option<ClockDist>,
+    pub anti_alias_time_constant_ms: Option<f64>,
+    pub gyro_anti_alias_time_constant_ms: Option<f64>,
+}
+
+/// The kind of a clock quantity's distribution (the `[errors]` section's kinds).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DistKind {
+    Normal,
+    Uniform,
+    Fixed,
+}
+
+/// A distribution of a clock quantity: `normal` (mean, sigma), `uniform` (mean +- half_width) or
+/// `fixed` (value: one for every package or one per package).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClockDist {
+    pub dist: DistKind,
+    pub mean: Option<f64>,
+    pub sigma: Option<f64>,
+    pub half_width: Option<f64>,
+    pub value: Option<OneOrEach<f64>>,
+}
+
+impl ClockDist {
+    /// The distribution in SI (`to_si` per display unit), for an array of `packages` packages.
+    fn resolve(&self, key: &str, to_si: f64, packages: usize) -> Result<Spread, Bad> {
+        let k = |s: &str| format!("{key}.{s}");
+        let forbid = |name: &str, given: bool, kind: &str| {
+            if given { Err(Bad::new(k(name), format!("does not apply to dist = \"{kind}\""))) } else { Ok(()) }
+        };
+        let non_negative = |name: &str, v: Option<f64>, kind: &str| -> Result<f64, Bad> {
+            let v = v.ok_or_else(|| Bad::new(k(name), format!("is required for dist = \"{kind}\"")))?;
+            if finite(&k(name), v)? < 0.0 {
+                return Err(Bad::new(k(name), format!("must not be negative, got {v}")));
+            }
+            Ok(v * to_si)
+        };
+        let mean = finite(&k("mean"), self.mean.unwrap_or(0.0))? * to_si;
+        match self.dist {
+            DistKind::Normal => {
+                forbid("half_width", self.half_width.is_some(), "normal")?;
+                forbid("value", self.value.is_some(), "normal")?;
+                Ok(Spread::Normal { mean, sigma: non_negative("sigma", self.sigma, "normal")? })
+            }
+            DistKind::Uniform => {
+                forbid("sigma", self.sigma.is_some(), "uniform")?;
+                forbid("value", self.value.is_some(), "uniform")?;
+                Ok(Spread::Uniform { mean, half_width: non_negative("half_width", self.half_width, "uniform")? })
+            }
+            DistKind::Fixed => {
+                for (name, given) in [
+                    ("mean", self.mean.is_some()),
+                    ("sigma", self.sigma.is_some()),
+                    ("half_width", self.half_width.is_some()),
+                ] {
+                    forbid(name, given, "fixed")?;
+                }
+                let v = self.value.as_ref().ok_or_else(|| Bad::new(k("value"), "is required for dist = \"fixed\""))?;
+                let values = match v {
+                    OneOrEach::One(x) => vec![*x],
+                    OneOrEach::Each(xs) if xs.len() == packages => xs.clone(),
+                    OneOrEach::Each(xs) => {
+                        return Err(Bad::new(
+                            k("value"),
+                            format!(
+                                "needs one value, or one per package of the array file ({packages}), got {}",
+                                xs.len()
+                            ),
+                        ));
+                    }
+                };
+                let mut out = Vec::with_capacity(values.len());
+                for (i, x) in values.iter().enumerate() {
+                    out.push(finite(&format!("{}[{i}]", k("value")), *x)? * to_si);
+                }
+                Ok(Spread::Fixed(out))
+            }
+        }
+    }
+}
+
+/// A band `[lo, hi]` in Hz with `0 < lo < hi`.
+fn band(key: &str, b: [f64; 2]) -> Result<[f64; 2], Bad> {
+    let lo = positive(&format!("{key}[0]"), b[0])?;
+    let hi = positive(&format!("{key}[1]"), b[1])?;
+    if hi <= lo {
+        return Err(Bad::new(key, format!("needs its lower corner below its upper, got [{lo}, {hi}]")));
+    }
+    Ok([lo, hi])
+}
+
+/// A non-negative finite value (0 when absent).
+fn non_negative(key: &str, v: Option<f64>) -> Result<f64, Bad> {
+    let v = finite(key, v.unwrap_or(0.0))?;
+    if v < 0.0 {
+        return Err(Bad::new(key, format!("must not be negative, got {v}")));
+    }
+    Ok(v)
 }
 
 /// A checked protocol with its recording array.
@@ -106,6 +242,74 @@ impl ProtocolSection {
             Some(v) => positive("protocol.gyro_noise_sigma_rad_s", v)?,
             None => 0.01,
         };
+        let motion_band_hz = match self.motion_band_hz {
+            Some(b) => band("protocol.motion_band_hz", b)?,
+            None => MOTION_BAND_HZ,
+        };
+        let vibration = Vibration {
+            accel_rms_m_s2: non_negative("protocol.vibration_rms_m_s2", self.vibration_rms_m_s2)?,
+            rate_rms_rad_s: non_negative("protocol.vibration_rate_rms_rad_s", self.vibration_rate_rms_rad_s)?,
+            band_hz: match self.vibration_band_hz {
+                Some(b) => band("protocol.vibration_band_hz", b)?,
+                None => VIBRATION_BAND_HZ,
+            },
+            rate_band_hz: self
+                .vibration_rate_band_hz
+                .map(|b| band("protocol.vibration_rate_band_hz", b))
+                .transpose()?,
+            rate_exponent: non_negative("protocol.vibration_rate_exponent", self.vibration_rate_exponent)?,
+        };
+        if vibration.rate_exponent > 4.0 {
+            return Err(Bad::new(
+                "protocol.vibration_rate_exponent",
+                format!(
+                    "must be at most 4 (the vibration's RMS goes as the rate to this power), got {}",
+                    vibration.rate_exponent
+                ),
+            ));
+        }
+        for (key, given) in [
+            ("protocol.vibration_band_hz", self.vibration_band_hz.is_some()),
+            ("protocol.vibration_rate_exponent", self.vibration_rate_exponent.is_some()),
+        ] {
+            if given && !vibration.is_on() {
+                return Err(Bad::new(
+                    key,
+                    "has no effect without protocol.vibration_rms_m_s2 or protocol.vibration_rate_rms_rad_s above 0",
+                ));
+            }
+        }
+        // The fine grid must resolve the vibration: ten steps a period at its upper corner.
+        let top_hz = 0.1 / FINE_STEP_S;
+        for (key, b) in [
+            ("protocol.vibration_band_hz", Some(vibration.band_hz)),
+            ("protocol.vibration_rate_band_hz", vibration.rate_band_hz),
+        ] {
+            if let Some(b) = b.filter(|b| vibration.is_on() && b[1] > top_hz) {
+                return Err(Bad::new(
+                    key,
+                    format!(
+                        "an upper corner of {} Hz is above the {top_hz} Hz the simulator's {} ms grid resolves",
+                        b[1],
+                        FINE_STEP_S * 1e3
+                    ),
+                ));
+            }
+        }
+        if self.vibration_rate_band_hz.is_some() && vibration.rate_rms_rad_s == 0.0 {
+            return Err(Bad::new(
+                "protocol.vibration_rate_band_hz",
+                "has no effect without protocol.vibration_rate_rms_rad_s above 0",
+            ));
+        }
+        let clocks = self.clocks(&array, rate)?;
+        let accel_tau_ms = non_negative("protocol.anti_alias_time_constant_ms", self.anti_alias_time_constant_ms)?;
+        let gyro_tau_ms = match self.gyro_anti_alias_time_constant_ms {
+            Some(v) => non_negative("protocol.gyro_anti_alias_time_constant_ms", Some(v))?,
+            None => accel_tau_ms,
+        };
+        let anti_alias =
+            AntiAlias { accel_time_constant_s: accel_tau_ms * 1e-3, gyro_time_constant_s: gyro_tau_ms * 1e-3 };
         Ok(ProtocolCell {
             protocol: Protocol {
                 poses: self.poses,
@@ -114,17 +318,80 @@ impl ProtocolSection {
                 dynamic_s,
                 rate_rms_rad_s: positive("protocol.rate_rms_rad_s", self.rate_rms_rad_s)?,
                 accel_rms_m_s2: positive("protocol.accel_rms_m_s2", self.accel_rms_m_s2)?,
-                motion_band_hz: crate::selfcal::simulate::MOTION_BAND_HZ,
+                motion_band_hz,
+                accel_band_hz: self.accel_band_hz.map(|b| band("protocol.accel_band_hz", b)).transpose()?,
                 sample_rate_hz: rate,
                 noise_sigma_m_s2: vec![noise_sigma_m_s2; n],
                 gyro_noise_sigma_rad_s: gyro,
                 gravity_m_s2,
+                vibration,
+                clocks,
+                anti_alias,
+                fine_step_s: FINE_STEP_S,
             },
             array,
             use_gyro: self.use_gyro,
         })
     }
 }
+
+impl ProtocolSection {
+    /// The clocks' distributions, checked against the array file: `None` unless `sample_clocks`.
+    fn clocks(&self, array: &RecordingArray, host_rate_hz: f64) -> Result<Option<ClockSpread>, Bad> {
+        let keys = [
+            ("protocol.clock_rate_offset_ppm", self.clock_rate_offset_ppm.is_some()),
+            ("protocol.clock_common_rate_offset_ppm", self.clock_common_rate_offset_ppm.is_some()),
+            ("protocol.clock_drift_ppm_per_s", self.clock_drift_ppm_per_s.is_some()),
+        ];
+        if !self.sample_clocks {
+            if let Some((key, _)) = keys.iter().find(|(_, given)| *given) {
+                return Err(Bad::new(*key, "has no effect without protocol.sample_clocks = true"));
+            }
+            return Ok(None);
+        }
+        if !array.has_sample_clocks() {
+            return Err(Bad::new(
+                "protocol.sample_clocks",
+                format!(
+                    "the array file {} declares no package with `sample_clock_hz` and `sample_and_hold`",
+                    array.path.display()
+                ),
+            ));
+        }
+        for (i, p) in array.packages.iter().enumerate() {
+            if let (Some(f), true) = (p.sample_clock_hz, p.free_running())
+                && f <= host_rate_hz
+            {
+                return Err(Bad::new(
+                    "protocol.sample_clocks",
+                    format!(
+                        "package[{i}].sample_clock_hz = {f} of the array file {} is not above protocol.sample_rate_hz = {host_rate_hz}: the host would read some internal samples twice",
+                        array.path.display()
+                    ),
+                ));
+            }
+        }
+        let packages = array.packages.len();
+        let ppm = 1e-6;
+        let rate_offset = match &self.clock_rate_offset_ppm {
+            Some(d) => d.resolve("protocol.clock_rate_offset_ppm", ppm, packages)?,
+            None => Spread::Normal { mean: 0.0, sigma: DEFAULT_RATE_OFFSET_SIGMA_PPM * ppm },
+        };
+        let common_rate_offset = match &self.clock_common_rate_offset_ppm {
+            Some(d) => d.resolve("protocol.clock_common_rate_offset_ppm", ppm, 1)?,
+            None => Spread::zero(),
+        };
+        let drift_per_s = match &self.clock_drift_ppm_per_s {
+            Some(d) => d.resolve("protocol.clock_drift_ppm_per_s", ppm, 1)?,
+            None => Spread::zero(),
+        };
+        Ok(Some(ClockSpread { rate_offset, common_rate_offset, drift_per_s }))
+    }
+}
+
+/// The packages' rate offset spread when `sample_clocks` is on and none is given, ppm: the
+/// standard deviation of the MIMU4444's eight clocks (-2580 to +1270 ppm).
+pub const DEFAULT_RATE_OFFSET_SIGMA_PPM: f64 = 1300.0;
 
 /// Moves a sampled truth (tilt-form layout vector) onto the gauge the calibration estimates in.
 pub fn truth_in_gauge(cell: &ProtocolCell, x: &DVector<f64>) -> DVector<f64> {

@@ -16,9 +16,10 @@ use rayon::prelude::*;
 
 use super::claim::{self, Entry, RunLock};
 use super::config::McConfig;
+use super::output::{parameters_batch, trials_batch};
 use super::summary::{Summarizer, Summary};
 use super::trial::{Prepared, TrialRecord, run_trials};
-use crate::io::parquet::{ParquetIoError, is_whole_part, parameters_batch, trials_batch, write_part};
+use crate::io::parquet::{ParquetIoError, is_whole_part, write_part};
 
 /// Receives progress; must not block (called from worker threads).
 pub trait Observer: Sync {
@@ -320,7 +321,7 @@ pub fn run(
     observer: &dyn Observer,
 ) -> Result<RunOutcome, RunError> {
     let (shard, shards) = opts.shard;
-    let (started, _folder_lock) = prepare_output(cfg, config_path, opts)?;
+    let (started, folder_lock) = prepare_output(cfg, config_path, opts)?;
     // Part bookkeeping grows with the work on disk, not with the trial count: this shard's parts
     // are `shard, shard + shards, ...`, taken lazily; only the parts that have a file are checked.
     let part_count = cfg.parts();
@@ -428,5 +429,7 @@ pub fn run(
     } else {
         None
     };
+    // No lock file or empty `locks/` folder is left behind by the last process to leave.
+    folder_lock.leave(&opts.out);
     Ok(RunOutcome { parts_written, parts_skipped, trials_run, complete, summary })
 }

@@ -10,6 +10,10 @@
 //! one: `|true|` would rank a signed deviation), `|estimated - true|` for estimated compensation.
 //! Runs written before the `nominal` column existed fall back to `|true|`. Inputs that do not vary are left out. At most
 //! `max_trials` trials per cell are used (the first by trial id), so memory stays bounded.
+//!
+//! A regression with as many coefficients as trials fits them exactly (R^2 = 1 from 15 trials and
+//! 42 inputs says nothing). With fewer than [`MIN_TRIALS_PER_INPUT`] trials per varying input, a
+//! cell's output gets no coefficients: one row with `srrc` and `r2` empty and a note saying why.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -17,7 +21,11 @@ use std::path::Path;
 use arrow_array::{Array, Float64Array, StringArray, UInt32Array, UInt64Array};
 use nalgebra::{DMatrix, DVector};
 
+use super::output::drift_value;
 use crate::io::parquet::{ParquetIoError, read_batches};
+
+/// The fewest trials per varying input a rank regression is fitted with.
+pub const MIN_TRIALS_PER_INPUT: usize = 10;
 
 /// Ranks of `x` (average rank for ties), 0-based.
 pub fn ranks(x: &[f64]) -> Vec<f64> {
@@ -67,7 +75,8 @@ pub fn srrc(inputs: &[Vec<f64>], output: &[f64]) -> (Vec<Option<f64>>, f64) {
     (out, r2)
 }
 
-/// One index.
+/// One index, or (with `srrc` and `r2` `None`, `input` empty and a `note`) the refusal to fit
+/// a cell's output from too few trials.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SensitivityRow {
     pub cell: u32,
@@ -75,9 +84,32 @@ pub struct SensitivityRow {
     pub output: String,
     /// `|a1.bias|` (true value) or `|error a1.bias|` (estimation error).
     pub input: String,
-    pub srrc: f64,
+    pub srrc: Option<f64>,
     /// `R^2` of the output's rank regression.
-    pub r2: f64,
+    pub r2: Option<f64>,
+    /// The trials the regression used (those with a value of the output).
+    pub trials: usize,
+    /// Why there are no coefficients, if there are none.
+    pub note: Option<String>,
+}
+
+/// The rows as CSV (`sensitivity.csv`): `cell,output,input,srrc,r2,trials,note`.
+pub fn sensitivity_csv(rows: &[SensitivityRow]) -> String {
+    let mut csv = String::from("cell,output,input,srrc,r2,trials,note\n");
+    let num = |v: Option<f64>| v.map(|v| format!("{v:e}")).unwrap_or_default();
+    for r in rows {
+        csv.push_str(&format!(
+            "{},{},\"{}\",{},{},{},{}\n",
+            r.cell,
+            r.output,
+            r.input,
+            num(r.srrc),
+            num(r.r2),
+            r.trials,
+            r.note.as_ref().map(|n| format!("\"{}\"", n.replace('"', "\"\""))).unwrap_or_default()
+        ));
+    }
+    csv
 }
 
 /// SRRC of every parameter for every nominal- and estimated-compensation drift column of a run.
@@ -160,7 +192,7 @@ pub fn sensitivity(dir: &Path, max_trials: usize) -> Result<Vec<SensitivityRow>,
                 for i in 0..b.num_rows() {
                     let key = (cell.value(i), trial.value(i));
                     if truth.contains_key(&key) {
-                        outputs.entry((key.0, n.clone())).or_default().push((key.1, v.value(i)));
+                        outputs.entry((key.0, n.clone())).or_default().push((key.1, drift_value(v, i)));
                     }
                 }
             }
@@ -170,9 +202,6 @@ pub fn sensitivity(dir: &Path, max_trials: usize) -> Result<Vec<SensitivityRow>,
     for ((cell, column), values) in &outputs {
         // Finite outputs only (NaN: no estimate; +inf: diverged, ranked last).
         let kept: Vec<(u64, f64)> = values.iter().filter(|(_, v)| !v.is_nan()).copied().collect();
-        if kept.len() < 10 {
-            continue;
-        }
         let estimated = column.starts_with("estimated_");
         let source = if estimated { &error } else { &truth };
         let inputs: Vec<Vec<f64>> = (0..names.len())
@@ -181,12 +210,40 @@ pub fn sensitivity(dir: &Path, max_trials: usize) -> Result<Vec<SensitivityRow>,
         if inputs.iter().any(|x| x.iter().any(|v| v.is_nan())) {
             continue;
         }
+        let varying = inputs.iter().filter(|x| x.iter().any(|v| *v != x[0])).count();
+        if varying == 0 {
+            continue;
+        }
+        if kept.len() < MIN_TRIALS_PER_INPUT * varying {
+            rows.push(SensitivityRow {
+                cell: *cell,
+                output: column.clone(),
+                input: String::new(),
+                srrc: None,
+                r2: None,
+                trials: kept.len(),
+                note: Some(format!(
+                    "{} trials for {varying} inputs: fewer than {MIN_TRIALS_PER_INPUT} trials per input, so no \
+                     coefficients (a regression with about as many coefficients as trials fits the noise)",
+                    kept.len()
+                )),
+            });
+            continue;
+        }
         let y: Vec<f64> = kept.iter().map(|(_, v)| *v).collect();
         let (coef, r2) = srrc(&inputs, &y);
         for (k, c) in coef.iter().enumerate() {
             if let Some(c) = c {
                 let input = if estimated { format!("|error {}|", names[k]) } else { format!("|{}|", names[k]) };
-                rows.push(SensitivityRow { cell: *cell, output: column.clone(), input, srrc: *c, r2 });
+                rows.push(SensitivityRow {
+                    cell: *cell,
+                    output: column.clone(),
+                    input,
+                    srrc: Some(*c),
+                    r2: Some(r2),
+                    trials: kept.len(),
+                    note: None,
+                });
             }
         }
     }

@@ -27,7 +27,8 @@ use arrow_array::{Float64Array, UInt64Array};
 use rand::RngExt;
 
 use super::config::McConfig;
-use crate::io::parquet::{ParquetIoError, column, drift_column, part_files, read_batches};
+use super::output::{drift_column, drift_value};
+use crate::io::parquet::{ParquetIoError, column, part_files, read_batches};
 use crate::mc::trial::DRIFT_METRICS;
 
 /// Resamples for the confidence intervals.
@@ -159,7 +160,7 @@ pub fn sobol(dir: &Path, cfg: &McConfig) -> Result<Vec<SobolRow>, ParquetIoError
                 for (col, array) in cols.iter().zip(arrays) {
                     let Some(v) = array else { continue };
                     values.entry((c as u32, col.clone())).or_insert_with(|| vec![f64::NAN; tpc])
-                        [(t % cfg.trials_per_cell) as usize] = v.value(i);
+                        [(t % cfg.trials_per_cell) as usize] = drift_value(v, i);
                 }
             }
         }

@@ -6,13 +6,18 @@
 //! error that the worst trial holds; per cell and drift column the median and 95th
 //! percentile and 5th percentile (from a sparse log-spaced histogram, 500 bins per decade: within 0.5%, at
 //! any magnitude). A diverged
-//! navigation (+inf) counts as larger than any value; a missing one (NaN: no estimate) is left out.
+//! navigation (+inf) counts as larger than any value; a missing one (null, or NaN in runs written
+//! before issue 30: no estimate) is left out. Per cell, the outcome of every trial's fit (`fits`:
+//! `estimated` or why not, see [`super::outcome`]), and the sweep factors' values; and the flags
+//! of a cell whose estimated compensation should not be read as it stands ([`cell_flags`]).
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use arrow_array::{Array, Float64Array, RecordBatch, StringArray, UInt32Array};
+use arrow_array::{Array, BooleanArray, Float64Array, RecordBatch, StringArray, UInt32Array};
 
+use super::outcome::{OUTCOMES, outcome};
+use super::output::{drift_value, factor_columns};
 use crate::io::parquet::{ParquetIoError, column, part_files as parts, read_batches};
 
 /// Statistics of one parameter in one cell, SI.
@@ -56,11 +61,174 @@ pub struct DriftSummary {
     pub p05: f64,
 }
 
+/// How many trials of a cell had one outcome (see [`super::outcome`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitCount {
+    pub cell: u32,
+    /// `estimated`, or why the trial has no estimate.
+    pub outcome: String,
+    pub n: u64,
+}
+
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Summary {
     pub trials: u64,
     pub parameters: Vec<ParameterSummary>,
     pub drift: Vec<DriftSummary>,
+    /// Per cell, each outcome that occurred, in the order of [`OUTCOMES`].
+    pub fits: Vec<FitCount>,
+    /// The sweep factors (the trials table's factor columns), and each cell's values as text.
+    pub factor_keys: Vec<String>,
+    pub factors: BTreeMap<u32, Vec<String>>,
+}
+
+/// The rows of cell `c` among `rows` sorted by cell (as every table of a [`Summary`] is): a
+/// binary search, so that going through a sweep's cells costs no more than its rows.
+pub fn of_cell<T>(rows: &[T], c: u32, cell: impl Fn(&T) -> u32) -> &[T] {
+    let start = rows.partition_point(|r| cell(r) < c);
+    let end = start + rows[start..].partition_point(|r| cell(r) <= c);
+    &rows[start..end]
+}
+
+impl Summary {
+    pub fn parameters_of(&self, c: u32) -> &[ParameterSummary] {
+        of_cell(&self.parameters, c, |p| p.cell)
+    }
+    pub fn drift_of(&self, c: u32) -> &[DriftSummary] {
+        of_cell(&self.drift, c, |d| d.cell)
+    }
+}
+
+/// The fewest trials with an estimate whose drift statistics a cell may rest on without a flag:
+/// the 5th and 95th percentiles of fewer than 20 values are their extremes.
+pub const MIN_ESTIMATES: u64 = 20;
+
+/// A cell's fits: its trials, those estimated, and the count of each other outcome.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CellFits {
+    pub cell: u32,
+    pub trials: u64,
+    pub estimated: u64,
+    pub others: Vec<(String, u64)>,
+}
+
+impl CellFits {
+    /// "18642 of 20000 trials estimated (93.2%); not estimated: 1358 left_small_error_region".
+    pub fn describe(&self) -> String {
+        let mut s = format!(
+            "{} of {} trials estimated ({:.1}%)",
+            self.estimated,
+            self.trials,
+            100.0 * self.estimated as f64 / self.trials.max(1) as f64
+        );
+        if !self.others.is_empty() {
+            let others: Vec<String> = self.others.iter().map(|(o, n)| format!("{n} {o}")).collect();
+            s.push_str(&format!("; not estimated: {}", others.join(", ")));
+        }
+        s
+    }
+}
+
+/// Each cell's fits, from the summary's `fits` rows.
+pub fn cell_fits(s: &Summary) -> Vec<CellFits> {
+    let mut out: Vec<CellFits> = Vec::new();
+    for f in &s.fits {
+        if out.last().is_none_or(|c| c.cell != f.cell) {
+            out.push(CellFits { cell: f.cell, trials: 0, estimated: 0, others: Vec::new() });
+        }
+        let c = out.last_mut().expect("pushed above");
+        c.trials += f.n;
+        if f.outcome == "estimated" {
+            c.estimated += f.n;
+        } else {
+            c.others.push((f.outcome.clone(), f.n));
+        }
+    }
+    out
+}
+
+/// Why a cell's estimated compensation should not be read as it stands.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CellFlag {
+    /// Fewer than [`MIN_ESTIMATES`] trials, or fewer than half the cell's, have an estimate: the
+    /// estimated drift describes the trials whose fit succeeded, not the cell.
+    FewEstimates { cell: u32, estimated: u64, trials: u64 },
+    /// The estimated compensation's median drift is above the nominal's: calibrating made the
+    /// navigation worse. `(metric column without the compensation, estimated median, nominal
+    /// median, unit)`, for every such column.
+    WorseThanNominal { cell: u32, columns: Vec<(String, f64, f64, String)> },
+}
+
+impl CellFlag {
+    pub fn cell(&self) -> u32 {
+        match self {
+            CellFlag::FewEstimates { cell, .. } | CellFlag::WorseThanNominal { cell, .. } => *cell,
+        }
+    }
+
+    /// One sentence saying what is wrong, with the numbers.
+    pub fn describe(&self) -> String {
+        match self {
+            CellFlag::FewEstimates { estimated, trials, .. } => format!(
+                "the estimated compensation rests on few trials: {estimated} of {trials} ({:.1}%) have an estimate \
+                 (flagged below {MIN_ESTIMATES} or below half the cell); its drift describes the trials whose fit \
+                 succeeded, not the cell",
+                100.0 * *estimated as f64 / (*trials).max(1) as f64
+            ),
+            CellFlag::WorseThanNominal { columns, .. } => {
+                let shown: Vec<String> = columns
+                    .iter()
+                    .take(3)
+                    .map(|(c, e, n, unit)| {
+                        use crate::io::format::significant as sig;
+                        format!("{c} median {} against {} {unit}", sig(*e, 3), sig(*n, 3))
+                    })
+                    .collect();
+                let more = columns.len().saturating_sub(3);
+                format!(
+                    "the estimated compensation is worse than nominal (no calibration) in {} drift column(s): {}{}",
+                    columns.len(),
+                    shown.join("; "),
+                    if more > 0 { format!("; and {more} more") } else { String::new() }
+                )
+            }
+        }
+    }
+}
+
+/// The flags of every cell, in cell order.
+pub fn cell_flags(s: &Summary) -> Vec<CellFlag> {
+    let mut flags = Vec::new();
+    let fits = cell_fits(s);
+    let mut cells: Vec<u32> = fits.iter().map(|f| f.cell).collect();
+    cells.extend(s.drift.iter().map(|d| d.cell));
+    cells.sort_unstable();
+    cells.dedup();
+    for cell in cells {
+        if let Some(f) = of_cell(&fits, cell, |f| f.cell).first()
+            && f.trials > 0
+            && (f.estimated < MIN_ESTIMATES || 2 * f.estimated < f.trials)
+        {
+            flags.push(CellFlag::FewEstimates { cell, estimated: f.estimated, trials: f.trials });
+        }
+        let mut worse = Vec::new();
+        let drift = s.drift_of(cell);
+        for d in drift {
+            let Some(rest) = d.column.strip_prefix("estimated_") else { continue };
+            let nominal = format!("nominal_{rest}");
+            let Some(n) = drift.iter().find(|n| n.column == nominal) else { continue };
+            if d.median.is_nan() || n.median.is_nan() {
+                continue;
+            }
+            if d.median > n.median {
+                worse.push((rest.to_string(), d.median, n.median, d.unit.clone()));
+            }
+        }
+        if !worse.is_empty() {
+            flags.push(CellFlag::WorseThanNominal { cell, columns: worse });
+        }
+    }
+    flags
 }
 
 #[derive(Default)]
@@ -191,8 +359,8 @@ impl Summarizer {
     }
 
     pub fn finish(self) -> Summary {
-        let (trials, drift) = self.drift.finish();
-        Summary { trials, parameters: self.parameters.finish(), drift }
+        let DriftOutput { trials, drift, fits, factor_keys, factors } = self.drift.finish();
+        Summary { trials, parameters: self.parameters.finish(), drift, fits, factor_keys, factors }
     }
 }
 
@@ -291,15 +459,39 @@ impl ParameterTable {
     }
 }
 
-/// The trial count and the drift table. Parts hold trials in order and cells are contiguous
-/// runs of trials: once a batch starts past a cell, that cell's histograms are final and are
-/// reduced to their quantiles, so memory holds at most the cells of one part.
+/// The trial count, the drift table, the fits and the factors. Parts hold trials in order and
+/// cells are contiguous runs of trials: once a batch starts past a cell, that cell's histograms
+/// are final and are reduced to their quantiles, so memory holds at most the cells of one part.
 #[derive(Default)]
 struct DriftTable {
     hist: BTreeMap<(u32, String), Histogram>,
     order: Vec<(u32, String)>,
     drift: Vec<DriftSummary>,
     trials: u64,
+    /// (cell, index in [`OUTCOMES`]) -> trials.
+    fits: BTreeMap<(u32, usize), u64>,
+    factor_keys: Vec<String>,
+    factors: BTreeMap<u32, Vec<String>>,
+}
+
+/// What the drift table gives the summary.
+struct DriftOutput {
+    trials: u64,
+    drift: Vec<DriftSummary>,
+    fits: Vec<FitCount>,
+    factor_keys: Vec<String>,
+    factors: BTreeMap<u32, Vec<String>>,
+}
+
+/// A sweep factor's value as text: numbers as Rust writes them (shortest exact form).
+fn factor_text(column: &dyn Array, i: usize) -> String {
+    if let Some(v) = column.as_any().downcast_ref::<Float64Array>() {
+        format!("{}", v.value(i))
+    } else if let Some(v) = column.as_any().downcast_ref::<StringArray>() {
+        v.value(i).to_string()
+    } else {
+        String::new()
+    }
 }
 
 impl DriftTable {
@@ -329,6 +521,32 @@ impl DriftTable {
             self.finalize(first);
         }
         let schema = batch.schema();
+        // The outcome of each trial's fit, and each cell's factor values.
+        let converged = column::<BooleanArray>(batch, "converged", file)?;
+        let message = column::<StringArray>(batch, "message", file)?;
+        let iterations = column::<UInt32Array>(batch, "iterations", file)?;
+        let cost = column::<Float64Array>(batch, "cost", file)?;
+        let estimated = schema
+            .fields()
+            .iter()
+            .position(|f| f.name().starts_with("estimated_") && f.name().contains("_at_"))
+            .and_then(|k| batch.column(k).as_any().downcast_ref::<Float64Array>());
+        let factor_keys = factor_columns(&schema);
+        if self.factor_keys.is_empty() {
+            self.factor_keys = factor_keys.clone();
+        }
+        let factor_cols: Vec<&dyn Array> =
+            factor_keys.iter().filter_map(|k| batch.column_by_name(k).map(|c| c.as_ref())).collect();
+        for i in 0..batch.num_rows() {
+            let has_estimate = !(iterations.value(i) == 0 && cost.value(i).is_nan());
+            let missing = estimated.map(|e| drift_value(e, i).is_nan());
+            let o = outcome(converged.value(i), message.value(i), has_estimate, missing);
+            let k = OUTCOMES.iter().position(|x| *x == o).unwrap_or(OUTCOMES.len() - 1);
+            *self.fits.entry((cell.value(i), k)).or_insert(0) += 1;
+            self.factors
+                .entry(cell.value(i))
+                .or_insert_with(|| factor_cols.iter().map(|c| factor_text(*c, i)).collect());
+        }
         for (k, f) in schema.fields().iter().enumerate() {
             if !f.name().contains("_err_") || !f.name().ends_with('s') || !f.name().contains("_at_") {
                 continue;
@@ -343,29 +561,55 @@ impl DriftTable {
                         order.push(key);
                         Histogram::new(f.metadata().get("unit").cloned().unwrap_or_default())
                     })
-                    .add(values.value(i));
+                    .add(drift_value(values, i));
             }
         }
         Ok(())
     }
 
-    fn finish(mut self) -> (u64, Vec<DriftSummary>) {
+    fn finish(mut self) -> DriftOutput {
         self.finalize(u32::MAX);
         self.drift.sort_by_key(|d| d.cell);
-        (self.trials, self.drift)
+        let fits =
+            self.fits.iter().map(|(&(cell, k), &n)| FitCount { cell, outcome: OUTCOMES[k].to_string(), n }).collect();
+        DriftOutput {
+            trials: self.trials,
+            drift: self.drift,
+            fits,
+            factor_keys: self.factor_keys,
+            factors: self.factors,
+        }
     }
 }
 
-/// The summary as one CSV table (`table` is `parameter` or `drift`; empty fields where a
-/// statistic does not apply).
+/// A CSV field: quoted when it holds a comma, a quote or a line break.
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) { format!("\"{}\"", s.replace('"', "\"\"")) } else { s.to_string() }
+}
+
+/// The summary as one CSV table: `table` is `parameter`, `drift` or `fits` (per cell, `name`
+/// an outcome and `n` its count); empty fields where a statistic does not apply. A sweep's
+/// factors are columns after `cell`, named by their keys, with each cell's value.
 pub fn summary_csv(s: &Summary) -> String {
-    let mut out = String::from(
-        "table,cell,name,unit,n,bias,rmse,crb_sigma,ratio,coverage_95,diverged,median,p95,p05,median_abs_error,worst_share\n",
+    let factors = |cell: u32| -> String {
+        let values = s.factors.get(&cell);
+        (0..s.factor_keys.len())
+            .map(|k| format!("{},", csv_field(values.and_then(|v| v.get(k)).map(String::as_str).unwrap_or(""))))
+            .collect()
+    };
+    let mut out = String::from("table,cell,");
+    for k in &s.factor_keys {
+        out.push_str(&csv_field(k));
+        out.push(',');
+    }
+    out.push_str(
+        "name,unit,n,bias,rmse,crb_sigma,ratio,coverage_95,diverged,median,p95,p05,median_abs_error,worst_share\n",
     );
     for p in &s.parameters {
         out.push_str(&format!(
-            "parameter,{},{},{},{},{:e},{:e},{:e},{:e},{:e},,,,,{:e},{:e}\n",
+            "parameter,{},{}{},{},{},{:e},{:e},{:e},{:e},{:e},,,,,{:e},{:e}\n",
             p.cell,
+            factors(p.cell),
             p.name,
             p.unit,
             p.n,
@@ -380,9 +624,20 @@ pub fn summary_csv(s: &Summary) -> String {
     }
     for d in &s.drift {
         out.push_str(&format!(
-            "drift,{},{},{},{},,,,,,{},{:e},{:e},{:e},,\n",
-            d.cell, d.column, d.unit, d.n, d.diverged, d.median, d.p95, d.p05
+            "drift,{},{}{},{},{},,,,,,{},{:e},{:e},{:e},,\n",
+            d.cell,
+            factors(d.cell),
+            d.column,
+            d.unit,
+            d.n,
+            d.diverged,
+            d.median,
+            d.p95,
+            d.p05
         ));
+    }
+    for f in &s.fits {
+        out.push_str(&format!("fits,{},{}{},,{},,,,,,,,,,,\n", f.cell, factors(f.cell), f.outcome, f.n));
     }
     out
 }

@@ -15,11 +15,12 @@ use crate::calib::measure::simulate;
 use crate::calib::pose::{self, marginal_fisher, tilted_schedule};
 use crate::calib::{Estimate, paper};
 use crate::config::calibration::Estimator;
+use crate::nav::SimulatedArray;
 use crate::nav::navigator::StepFill;
 use crate::nav::{MotionGrid, NavGroup, PlanStep, Route, navigate_groups};
 use crate::rng::trial_rng;
 use crate::sensor::noise::NoiseGenerator;
-use crate::sensor::{ArrayParams, Compensator, SimulatedArray};
+use crate::sensor::{ArrayParams, Compensator};
 
 /// Salt of the navigation-noise streams: trial `i` navigates with `trial_rng(seed ^ NAV_SALT, i)`,
 /// the same realisation for every compensation.

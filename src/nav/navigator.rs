@@ -5,31 +5,10 @@ use nalgebra::{UnitQuaternion, Vector3};
 use super::drift::DriftSample;
 use super::lanes::{L, LANES, LaneSolve, LaneState};
 use super::plan::{Plan, PlanStep};
-use super::trajectory::{InitialState, Trajectory, TruthState};
+use super::source::OutputSource;
+use super::state::NavState;
+use super::trajectory::{Trajectory, TruthState};
 use crate::sensor::params::Compensator;
-
-/// Navigated state.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct NavState {
-    pub q_b_i: UnitQuaternion<f64>,
-    pub omega_b_rad_s: Vector3<f64>,
-    pub v_i_m_s: Vector3<f64>,
-    pub r_i_m: Vector3<f64>,
-}
-
-impl From<InitialState> for NavState {
-    fn from(s: InitialState) -> Self {
-        Self { q_b_i: s.q_b_i, omega_b_rad_s: s.omega_b_rad_s, v_i_m_s: s.v_i_m_s, r_i_m: s.r_i_m }
-    }
-}
-
-/// A source of array outputs along the trajectory: `outputs(t, out)` fills the raw outputs at
-/// time `t`; `begin_step(t, h)` is called before each step (a noisy source draws its noise there,
-/// held over the step).
-pub trait OutputSource {
-    fn begin_step(&mut self, _t_s: f64, _h_s: f64) {}
-    fn outputs(&mut self, t_s: f64, out: &mut [f64]);
-}
 
 /// Navigates from the trajectory's initial state with fixed steps of `step_s` (shortened to land
 /// exactly on each horizon and on each of the trajectory's breakpoints: [`Plan`]), compensating
@@ -207,9 +186,10 @@ fn navigate_groups_any(route: &Route<'_>, groups: &mut [NavGroup<'_, '_>]) -> Ve
 mod tests {
     use super::*;
     use crate::array::Array;
+    use crate::nav::SimulatedArray;
     use crate::nav::{MotionGrid, Trajectory};
+    use crate::sensor::ArrayParams;
     use crate::sensor::params::random_params;
-    use crate::sensor::{ArrayParams, SimulatedArray};
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
 
@@ -277,8 +257,6 @@ mod tests {
                 assert_eq!(alone[0][0], together[t][c], "trial {t}, compensation {c}");
             }
         }
-        #[cfg(target_arch = "x86_64")]
-        eprintln!("AVX: {}", std::arch::is_x86_feature_detected!("avx"));
         assert_eq!(run(&grid, &cube, &trials, true), together);
     }
 }

@@ -9,11 +9,12 @@ use std::path::PathBuf;
 use super::display_unit;
 use super::html::Page;
 use super::plot::{Item, Panel, render};
-use crate::io::csv::significant;
+use crate::array::wiring::RecordingArray;
+use crate::io::format::significant;
 use crate::selfcal::calibrate::Calibration;
 use crate::selfcal::model::{NAMES, PER_ACCEL, UNITS, sensors};
 use crate::selfcal::predict::HeldOut;
-use crate::selfcal::recording::{Recording, RecordingArray};
+use crate::selfcal::recording::Recording;
 
 /// Renders the report page.
 pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, held: &[(PathBuf, HeldOut)]) -> String {
@@ -49,15 +50,35 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
             let mut cells = vec![format!("{}", j + 1)];
             for p in 0..PER_ACCEL {
                 let (_, f) = display_unit(UNITS[p]);
-                let v = if p == 0 { fit.params.get(j, p) - 1.0 } else { fit.params.get(j, p) };
-                cells.push(significant(v * f, 4));
+                if !fit.identified(j, p) {
+                    cells.push("unidentified".into());
+                    cells.push("-".into());
+                    continue;
+                }
+                let v = fit.params.get(j, p);
+                cells.push(significant(v * f, if p == 0 { 6 } else { 4 }));
                 cells.push(significant(fit.sigma(j, p) * f, 2));
             }
             (cells, false)
         })
         .collect();
     page.table(&header_ref, &rows);
-    page.text("Units: SI, as in the JSON. Scale factor shown as its deviation from 1 (dimensionless). Bias is input-referred; tilts are the tilt-form misalignment angles; dx, dy, dz are location errors (true minus nominal position).");
+    page.text("Units: SI, as in the JSON. Scale factor shown as its value (dimensionless), as the text and the JSON show it. Bias is input-referred; tilts are the tilt-form misalignment angles; dx, dy, dz are location errors (true minus nominal position).");
+    if !fit.unseen.is_empty() {
+        page.heading(2, "Combinations the recording cannot see");
+        page.text(&format!(
+            "The Fisher information has {} null directions, {} beyond the gauge's {}: these parameter combinations are not measured, so every parameter with a share in them is unidentified (no value, no sigma) and the rest are calibrated. Weights are those of the unit combination with each parameter scaled by its own information.",
+            fit.null_directions,
+            fit.unseen.len(),
+            fit.gauge.count()
+        ));
+        for c in &fit.unseen {
+            page.text(&crate::selfcal::unseen::describe(c, rec.accelerometers()));
+        }
+    }
+    if !cal.to_identify.is_empty() {
+        page.text(&format!("What would make them identifiable: {}.", cal.to_identify.join("; ")));
+    }
 
     page.heading(2, "Residuals against the noise");
     page.text(&format!(
@@ -245,5 +266,13 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
         }))
         .collect();
     page.table(&["interval", "start (s)", "end (s)", "samples", "up (array axes)"], &rows);
+    page.heading(2, "Assessment: what to trust");
+    let rows: Vec<(Vec<String>, bool)> = crate::selfcal::output::verdicts(cal, held)
+        .into_iter()
+        .map(|v| {
+            (vec![v.kind.to_string(), if v.trustworthy { "yes" } else { "no" }.to_string(), v.reason], !v.trustworthy)
+        })
+        .collect();
+    page.table(&["kind", "trustworthy", "why"], &rows);
     page.finish()
 }

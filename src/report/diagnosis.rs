@@ -9,13 +9,11 @@
 //! - the effects named, with values, sigmas and p-values, and the candidates the log cannot
 //!   separate from the model.
 
-use statrs::distribution::{ChiSquared, ContinuousCDF};
-
 use super::ReportError;
 use super::html::Page;
 use super::plot::{Figure, Item, Panel, render};
-use crate::discrepancy::diagnose::{Diagnosis, Explanation, Verdict};
-use crate::discrepancy::log::CalibrationLog;
+use crate::discrepancy::Explanation;
+use crate::discrepancy::log::{CalibrationLog, Diagnosis, Verdict};
 
 /// A rendered diagnosis report.
 #[derive(Debug, Clone)]
@@ -37,9 +35,9 @@ fn gap_figure(d: &Diagnosis, alpha: f64) -> Result<Figure, ReportError> {
         .with(Item::Line { label: Some("1: noise alone".into()), points: span(1.0), colour: 2, dashed: true });
     if let Some(s) = d.stages.last()
         && s.dof > 0
-        && let Ok(chi) = ChiSquared::new(s.dof as f64)
+        && let Some(quantile) = crate::stats::chi2_quantile(1.0 - alpha, s.dof as f64)
     {
-        let critical = chi.inverse_cdf(1.0 - alpha) / s.dof as f64;
+        let critical = quantile / s.dof as f64;
         panel = panel.with(Item::Line {
             label: Some(format!("critical value at alpha = {alpha} ({} dof)", s.dof)),
             points: span(critical),

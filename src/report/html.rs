@@ -9,7 +9,8 @@ pub struct Page {
     body: String,
 }
 
-const STYLE: &str = "body{font-family:sans-serif;max-width:1900px;margin:1em auto;padding:0 1em;color:#222}\
+const STYLE: &str = "body{font-family:sans-serif;max-width:1240px;margin:1em auto;padding:0 1em;color:#222}\
+svg{max-width:100%;height:auto}\
 h1{font-size:1.6em}h2{font-size:1.3em;border-bottom:1px solid #ccc;margin-top:2em}h3{font-size:1.1em}\
 figure{margin:1em 0}figcaption{font-size:.9em;color:#444;max-width:1100px}\
 table{border-collapse:collapse;font-size:.85em;margin:.5em 0}\

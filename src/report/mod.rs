@@ -5,6 +5,7 @@
 pub mod calibration;
 pub mod diagnosis;
 pub mod html;
+pub mod lincov;
 pub mod plot;
 pub mod recorded;
 pub mod run;

@@ -6,10 +6,11 @@
 use super::html::Page;
 use super::plot::{Item, Panel, render};
 use super::{Figure, ReportError};
+use crate::array::wiring::RecordingArray;
 use crate::discrepancy::recorded::{Gap, RecordedDiagnosis};
-use crate::io::csv::significant;
+use crate::io::format::significant;
 use crate::selfcal::model::sensors;
-use crate::selfcal::recording::{Recording, RecordingArray};
+use crate::selfcal::recording::Recording;
 
 /// Bins of a residual RMS against some quantity: `(sum of squares, count)` per bin of `width`.
 struct Bins {
@@ -196,6 +197,7 @@ pub fn recorded_report(
             let owner = match (f.accelerometer, f.package) {
                 (Some(j), _) => format!("accelerometer {}", j + 1),
                 (_, Some(m)) => format!("package {}", m + 1),
+                _ if f.name == "sample_clock" => "every package".into(),
                 _ => "all / shared".into(),
             };
             let values: Vec<String> = f

@@ -27,12 +27,13 @@ use arrow_array::{Float64Array, StringArray, UInt32Array};
 use super::html::Page;
 use super::plot::{Figure, Item, Panel, render};
 use super::{ReportError, display_unit, kind_of_unit};
-use crate::io::csv::significant as sig;
-use crate::io::parquet::{ParquetIoError, column, drift_column, part_files, read_batches};
+use crate::io::format::significant as sig;
+use crate::io::parquet::{ParquetIoError, column, part_files, read_batches};
 use crate::mc::config::{Cell, FactorValue, McConfig};
+use crate::mc::output::drift_column;
 use crate::mc::sensitivity::{SensitivityRow, sensitivity};
 use crate::mc::sobol::{SobolRow, sobol};
-use crate::mc::summary::{Summary, summarize};
+use crate::mc::summary::{Summary, cell_fits, cell_flags, of_cell, summarize};
 use crate::mc::trial::DRIFT_METRICS;
 
 /// A parameter is weak when its Cramer-Rao sigma exceeds this multiple of its kind's median.
@@ -127,7 +128,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 /// Which parameters of a cell are weak (by name), from the summary's RMS Cramer-Rao sigmas.
 fn weak_parameters(summary: &Summary, cell: u32) -> Vec<String> {
-    let mine: Vec<_> = summary.parameters.iter().filter(|p| p.cell == cell).collect();
+    let mine: Vec<_> = summary.parameters_of(cell).iter().collect();
     let mut weak = Vec::new();
     for kind in ["bias", "scale factor", "misalignment", "location"] {
         let of_kind: Vec<_> = mine.iter().filter(|p| kind_of_unit(&p.unit) == kind).collect();
@@ -188,7 +189,9 @@ fn error_figure(cfg: &McConfig, c: usize, sample: &Sample) -> Result<Option<Figu
             .collect();
         let first = panels.is_empty();
         let title = if outside > 0 { format!("{name} ({outside} outside)") } else { name.clone() };
-        let mut panel = Panel::new(title, format!("error [{unit}]"), format!("density [1/{unit}]")).with(Item::Bars {
+        // The density of a dimensionless error is dimensionless: [1], not [1/1].
+        let density = if unit == "1" { "density [1]".to_string() } else { format!("density [1/{unit}]") };
+        let mut panel = Panel::new(title, format!("error [{unit}]"), density).with(Item::Bars {
             label: first.then(|| "trials".to_string()),
             bars,
             colour: 0,
@@ -225,7 +228,7 @@ fn error_figure(cfg: &McConfig, c: usize, sample: &Sample) -> Result<Option<Figu
         &caption,
         &panels,
         crate::calib::params::PER_ACCEL,
-        (250, 190),
+        (170, 160),
     )?))
 }
 
@@ -251,7 +254,7 @@ fn identifiability_figure(cfg: &McConfig, summary: &Summary) -> Result<Option<Fi
             let weak = weak_parameters(summary, c as u32);
             let mut bars = Vec::new();
             for (x, name) in names.iter().enumerate() {
-                let Some(p) = summary.parameters.iter().find(|p| p.cell == c as u32 && &p.name == name) else {
+                let Some(p) = summary.parameters_of(c as u32).iter().find(|p| &p.name == name) else {
                     continue;
                 };
                 let x0 = x as f64 - 0.4 + 0.8 * ci as f64 / k;
@@ -307,7 +310,7 @@ fn drift_figure(cfg: &McConfig, c: usize, summary: &Summary) -> Result<Option<Fi
             .iter()
             .filter_map(|h| {
                 let col = drift_column(comp, metric, *h);
-                let d = summary.drift.iter().find(|d| d.cell == c as u32 && d.column == col)?;
+                let d = summary.drift_of(c as u32).iter().find(|d| d.column == col)?;
                 Some((*h, d.p05, d.median, d.p95, d.diverged, d.n))
             })
             .collect()
@@ -497,52 +500,102 @@ fn location_figure(cfg: &McConfig, samples: &[Sample], summary: &Summary) -> Res
     Ok(Some(render("location_recovery", "Location errors: recovered against true", caption, &panels, 2, (560, 440))?))
 }
 
-/// Top inputs by |SRRC| for each drift metric at the last horizon, nominal and estimated.
+/// Below this R^2 a rank regression explains too little of its output for its coefficients to be
+/// read: the panel is marked weak.
+pub const WEAK_R2: f64 = 0.1;
+
+/// Top inputs by |SRRC| for each drift metric at the last horizon, nominal and estimated; the
+/// outputs given no coefficients (too few trials per input) are not drawn but named in the
+/// caption.
 fn sensitivity_figure(cfg: &McConfig, c: usize, rows: &[SensitivityRow]) -> Result<Option<Figure>, ReportError> {
     let cell = &cfg.cells[c];
     let h = *cell.navigation.horizons_s.last().unwrap_or(&1.0);
     let mut panels = Vec::new();
+    let mut weak = 0;
     for comp in ["nominal", "estimated"] {
         for (metric, _) in DRIFT_METRICS {
             let col = drift_column(comp, metric, h);
-            let mut mine: Vec<&SensitivityRow> =
-                rows.iter().filter(|r| r.cell == c as u32 && r.output == col).collect();
+            let mut mine: Vec<(&SensitivityRow, f64, f64)> = of_cell(rows, c as u32, |r| r.cell)
+                .iter()
+                .filter(|r| r.output == col)
+                .filter_map(|r| Some((r, r.srrc?, r.r2?)))
+                .collect();
             if mine.is_empty() {
                 continue;
             }
-            mine.sort_by(|a, b| b.srrc.abs().total_cmp(&a.srrc.abs()));
+            mine.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
             mine.truncate(8);
             // `|error a1.dz|` -> `a1.dz`: the axis title says which magnitude.
             let names: Vec<String> =
-                mine.iter().map(|r| r.input.trim_matches('|').trim_start_matches("error ").to_string()).collect();
+                mine.iter().map(|r| r.0.input.trim_matches('|').trim_start_matches("error ").to_string()).collect();
             let bars: Vec<(f64, f64, f64)> =
-                mine.iter().enumerate().map(|(x, r)| (x as f64 - 0.35, x as f64 + 0.35, r.srrc)).collect();
+                mine.iter().enumerate().map(|(x, r)| (x as f64 - 0.35, x as f64 + 0.35, r.1)).collect();
             let input = if comp == "nominal" { "input: |true value|" } else { "input: |estimation error|" };
-            panels.push(
-                Panel::new(format!("{col} (R^2 {:.2})", mine[0].r2), input, "SRRC [1]")
-                    .categorical(names)
-                    .with(Item::Bars { label: None, bars, colour: if comp == "nominal" { 0 } else { 1 } }),
-            );
+            let r2 = mine[0].2;
+            // NaN (no R^2) is weak too.
+            let is_weak = r2.is_nan() || r2 < WEAK_R2;
+            weak += is_weak as usize;
+            // A weak panel's R^2 rounded down, so that it never reads as the bound (0.0996: 0.099).
+            let title = if is_weak {
+                format!("{col} (R^2 {:.3}: weak, do not read)", (r2 * 1000.0).floor() / 1000.0)
+            } else {
+                format!("{col} (R^2 {r2:.2})")
+            };
+            // A weak panel is drawn in grey.
+            let colour = if is_weak {
+                6
+            } else if comp == "nominal" {
+                0
+            } else {
+                1
+            };
+            panels.push(Panel::new(title, input, "SRRC [1]").categorical(names).with(Item::Bars {
+                label: None,
+                bars,
+                colour,
+            }));
         }
     }
     if panels.is_empty() {
         return Ok(None);
     }
+    let trials = of_cell(rows, c as u32, |r| r.cell).iter().map(|r| r.trials).max().unwrap_or(0);
     let caption = format!(
         "Which error parameters drive each drift metric at {h} s in cell {c} ({}): standardised rank regression \
          coefficients of the inputs (|true value| for nominal compensation, |estimation error| for estimated), \
          the eight largest per metric. An SRRC of 1 means the metric's rank follows that input's alone; read \
-         them only when R^2 is high. Computed on the first {SENSITIVITY_TRIALS} trials of the cell.",
-        describe(cell)
+         them only when R^2 is high{}. Computed on {trials} trials of the cell (at most the first \
+         {SENSITIVITY_TRIALS}).",
+        describe(cell),
+        if weak > 0 {
+            format!(
+                ": {weak} panel(s) here have R^2 below {WEAK_R2} and are drawn in grey, marked weak: the inputs explain \
+                 too little of the metric's rank for their coefficients to mean anything"
+            )
+        } else {
+            String::new()
+        }
     );
     Ok(Some(render(
         &format!("sensitivity_cell{c}"),
         &format!("Sensitivity, cell {c}"),
         &caption,
         &panels,
-        4,
+        2,
         (480, 300),
     )?))
+}
+
+/// Why a cell's sensitivity has no coefficients to draw, if the regression refused to fit.
+fn sensitivity_refusal(c: usize, rows: &[SensitivityRow]) -> Option<String> {
+    let refused: Vec<&SensitivityRow> =
+        of_cell(rows, c as u32, |r| r.cell).iter().filter(|r| r.note.is_some()).collect();
+    let first = refused.first()?;
+    Some(format!(
+        "{} drift column(s) of cell {c} get no sensitivity coefficients: {}",
+        refused.len(),
+        first.note.as_deref().unwrap_or_default()
+    ))
 }
 
 /// First-order and total Sobol' indices with 95% intervals, the eight largest totals per metric.
@@ -554,7 +607,8 @@ fn sobol_figure(cfg: &McConfig, c: usize, rows: &[SobolRow]) -> Result<Option<Fi
     for comp in &cell.navigation.compensations {
         for (metric, _) in DRIFT_METRICS {
             let col = drift_column(comp.name(), metric, h);
-            let mut mine: Vec<&SobolRow> = rows.iter().filter(|r| r.cell == c as u32 && r.output == col).collect();
+            let mut mine: Vec<&SobolRow> =
+                of_cell(rows, c as u32, |r| r.cell).iter().filter(|r| r.output == col).collect();
             if mine.is_empty() {
                 continue;
             }
@@ -597,15 +651,14 @@ fn sobol_figure(cfg: &McConfig, c: usize, rows: &[SobolRow]) -> Result<Option<Fi
          variance, not in the parameters' indices.",
         describe(cell)
     );
-    Ok(Some(render(&format!("sobol_cell{c}"), &format!("Sobol' indices, cell {c}"), &caption, &panels, 4, (480, 300))?))
+    Ok(Some(render(&format!("sobol_cell{c}"), &format!("Sobol' indices, cell {c}"), &caption, &panels, 2, (480, 300))?))
 }
 
 fn parameter_table(page: &mut Page, summary: &Summary, c: u32) {
     let weak = weak_parameters(summary, c);
     let rows: Vec<(Vec<String>, bool)> = summary
-        .parameters
+        .parameters_of(c)
         .iter()
-        .filter(|p| p.cell == c)
         .map(|p| {
             let (unit, f) = display_unit(&p.unit);
             (
@@ -659,6 +712,18 @@ pub fn run_report(dir: &Path) -> Result<RunReport, ReportError> {
     if summary.trials < cfg.total_trials() {
         page.note("The run is not complete: the report covers the parts written so far.");
     }
+    let flagged: Vec<String> = {
+        let mut cells: Vec<String> = cell_flags(&summary).iter().map(|f| f.cell().to_string()).collect();
+        cells.dedup();
+        cells
+    };
+    if !flagged.is_empty() {
+        page.note(&format!(
+            "{} cell(s) flagged, whose estimated compensation should not be read as it stands (see each cell): {}.",
+            flagged.len(),
+            flagged.join(", ")
+        ));
+    }
     let mut add = |page: &mut Page, fig: Option<Figure>, what: &str, notes: &mut Vec<String>| match fig {
         Some(f) => {
             page.figure(&f, Some(&format!("report/{}.svg", f.name)));
@@ -673,20 +738,42 @@ pub fn run_report(dir: &Path) -> Result<RunReport, ReportError> {
     page.heading(2, "Identifiability across cells");
     add(&mut page, identifiability_figure(&cfg, &summary)?, "identifiability", &mut notes);
     add(&mut page, location_figure(&cfg, &samples, &summary)?, "location recovery", &mut notes);
+    let fits = cell_fits(&summary);
+    let flags = cell_flags(&summary);
     for (c, cell) in cfg.cells.iter().enumerate() {
         page.heading(2, &format!("Cell {c}: {}", describe(cell)));
+        if let Some(f) = of_cell(&fits, c as u32, |f| f.cell).first() {
+            page.text(&format!(
+                "Fits: {}. The parameter statistics below use the trials with an estimate, converged or not (the \
+                 trials column); the drift of the estimated compensation uses the {} estimated trials.",
+                f.describe(),
+                f.estimated
+            ));
+        }
+        for flag in of_cell(&flags, c as u32, |f| f.cell()) {
+            page.note(&format!("Flag: {}.", flag.describe()));
+        }
         page.heading(3, "Estimation error");
         parameter_table(&mut page, &summary, c as u32);
         add(&mut page, error_figure(&cfg, c, &samples[c])?, &format!("cell {c} estimation errors"), &mut notes);
         page.heading(3, "Drift");
         add(&mut page, drift_figure(&cfg, c, &summary)?, &format!("cell {c} drift"), &mut notes);
         page.heading(3, "Sensitivity");
-        add(
-            &mut page,
-            sensitivity_figure(&cfg, c, &sens)?,
-            &format!("cell {c} sensitivity (no error parameter varies between trials)"),
-            &mut notes,
-        );
+        match (sensitivity_figure(&cfg, c, &sens)?, sensitivity_refusal(c, &sens)) {
+            (figure, Some(refusal)) => {
+                page.note(&refusal);
+                notes.push(refusal);
+                if figure.is_some() {
+                    add(&mut page, figure, "", &mut notes);
+                }
+            }
+            (figure, None) => add(
+                &mut page,
+                figure,
+                &format!("cell {c} sensitivity (no error parameter varies between trials)"),
+                &mut notes,
+            ),
+        }
         if cell.saltelli.is_some() {
             add(
                 &mut page,

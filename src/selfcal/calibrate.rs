@@ -2,14 +2,23 @@
 //!
 //! Segments the recording, forms the static means and the dynamic samples, fits
 //! (`selfcal::fit`), and checks the gyroscope-free angular rate against the reference gyroscopes.
+//! Where the array file declares free-running sample clocks (`array::wiring`), the packages'
+//! clocks are fitted with the other parameters (`selfcal::timing`): started from the sawtooth of
+//! the gyroscopes' time offsets, then the outputs corrected to the mean instant and refitted,
+//! the clocks refined on the accelerometers' residuals, three times over.
 
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord, clippy::useless_vec)]
 
 use nalgebra::{DMatrix, Vector3};
 
-use super::fit::{DynamicData, Fit, FitError, FitSettings, StaticData, fit};
-use super::recording::{Recording, RecordingArray};
+use super::clock::{SampleClock, fit_packages, half_differences};
+use super::data::{DynamicData, StaticData};
+use super::fit::{Fit, FitError, FitSettings, fit, fit_from};
+use super::model::sensors;
+use super::recording::Recording;
 use super::segment::{DetectorSettings, Interval, Segmentation, segment};
+use super::timing::{ClockEstimate, ClockProblem, SigmaCheck, TIMING_UNKNOWNS_PER_SAMPLE, gyro_offsets, host_dt_s};
+use crate::array::wiring::RecordingArray;
 
 /// Settings of a calibration.
 #[derive(Debug, Clone, Copy, Default)]
@@ -73,6 +82,14 @@ pub struct Calibration {
     pub gyro_bias_rad_s: Option<Vector3<f64>>,
     pub gyro_check: Option<GyroCheck>,
     pub use_gyro: bool,
+    /// The packages' sample clocks, where the array file declares them and the recording
+    /// resolves them.
+    pub clocks: Option<ClockEstimate>,
+    /// Why declared clocks were not fitted (the fit is then without them).
+    pub clock_note: Option<String>,
+    /// What would make the parameters the recording cannot identify identifiable, in words
+    /// (`selfcal::geometry::remedies`); empty when every parameter is identified.
+    pub to_identify: Vec<String>,
 }
 
 /// The static means and pooled per-sample scatter of every interval. An output at or beyond its
@@ -138,9 +155,32 @@ pub fn calibrate(
     let dynamic = prepared.data.as_ref();
     let fit = fit(&array.array, &stat, dynamic, &settings.fit)
         .map_err(|source| CalibrateError::Fit { path: rec.path.clone(), source })?;
+    let (fit, clocks, clock_note) = match dynamic.filter(|_| array.has_sample_clocks()) {
+        Some(d) => {
+            check_clock_rates(rec, array)?;
+            match estimate_clocks(rec, array, &seg, &stat, d, &settings.fit, &fit) {
+                Ok((f, c)) => (f, Some(c), None),
+                Err(ClockFailure::NotResolved(why)) => (fit, None, Some(why)),
+                Err(ClockFailure::Fit(source)) => return Err(CalibrateError::Fit { path: rec.path.clone(), source }),
+            }
+        }
+        None => (fit, None, None),
+    };
     let gyro_check = match (gyro_bias_rad_s, settings.use_gyro, fit.motion.is_empty()) {
         (Some(b), false, false) => Some(gyro_check(rec, &prepared.index, &fit, &b)),
         _ => None,
+    };
+    let unidentified = fit.unseen_parameters.iter().any(|&u| u);
+    let to_identify = if unidentified || !fit.locations_identified {
+        crate::selfcal::geometry::remedies(
+            &array.array,
+            array.gyroscopes.len(),
+            settings.use_gyro,
+            fit.locations_identified,
+            fit.unseen.len(),
+        )
+    } else {
+        Vec::new()
     };
     Ok(Calibration {
         segmentation: seg,
@@ -152,7 +192,253 @@ pub fn calibrate(
         gyro_bias_rad_s,
         gyro_check,
         use_gyro: settings.use_gyro,
+        clocks,
+        clock_note,
+        to_identify,
     })
+}
+
+/// The clocks of a recording's packages as their own gyroscopes measure them (the start of
+/// [`estimate_clocks`], no calibration): per package its clock (`None` without a free-running
+/// clock), referred to the centre of the rotation phase. `Err` says why a recording does not
+/// resolve them.
+pub fn gyroscope_clocks(
+    rec: &Recording,
+    array: &RecordingArray,
+    settings: &CalibrateSettings,
+) -> Result<Vec<Option<SampleClock>>, String> {
+    let seg = segment(rec, &settings.detector).map_err(|e| e.to_string())?;
+    let dt = host_dt_s(&rec.t_s).ok_or("the recording has no time step")?;
+    let dynamic_rows: Vec<usize> = seg.dynamic_intervals.iter().flat_map(|iv| iv.start..iv.end).collect();
+    let static_rows: Vec<usize> = seg.static_intervals.iter().flat_map(|iv| iv.start..iv.end).collect();
+    let (Some(&first), Some(&last)) = (dynamic_rows.first(), dynamic_rows.last()) else {
+        return Err("no rotation phase".into());
+    };
+    let t_ref_s = 0.5 * (rec.t_s[first] + rec.t_s[last]);
+    let offsets = gyro_offsets(rec, &dynamic_rows, &static_rows).ok_or("no gyroscope in every package")?;
+    let nominal: Vec<f64> = array.packages.iter().map(|p| p.sample_clock_hz.unwrap_or(1.0 / dt)).collect();
+    let fits =
+        fit_packages(&offsets, &nominal, dt, t_ref_s, 5e-3).ok_or("too few samples with angular acceleration")?;
+    Ok(array.packages.iter().zip(&fits).map(|(p, f)| p.free_running().then_some(f.clock)).collect())
+}
+
+/// A calibration's dynamic data with the outputs corrected to the packages' mean instant by its
+/// clocks and timing motion (what the fit with clocks was fitted to).
+pub fn corrected_dynamic(array: &RecordingArray, fit: &Fit, d: &DynamicData, clocks: &ClockEstimate) -> DynamicData {
+    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.unwrap_or(0)).collect();
+    let sens = sensors(&array.array, &fit.params);
+    let weights: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    let problem = ClockProblem::new(&sens, d, &fit.motion, &weights, &package_of);
+    DynamicData {
+        outputs: problem.corrected(&d.outputs, &clocks.clocks, &clocks.timing),
+        extra_unknowns_per_sample: TIMING_UNKNOWNS_PER_SAMPLE,
+        ..d.clone()
+    }
+}
+
+/// A declared sample clock must tick faster than the host samples (else "the latest sample"
+/// is no sample-and-hold of a faster clock): refused naming the array file's key.
+fn check_clock_rates(rec: &Recording, array: &RecordingArray) -> Result<(), CalibrateError> {
+    let Some(dt) = host_dt_s(&rec.t_s) else { return Ok(()) };
+    for (i, p) in array.packages.iter().enumerate() {
+        if let Some(f0) = p.sample_clock_hz.filter(|_| p.sample_and_hold)
+            && f0 * dt <= 1.0
+        {
+            return Err(CalibrateError::Recording {
+                path: array.path.clone(),
+                problem: format!(
+                    "key `package[{i}].sample_clock_hz`: {f0} Hz is not above the recording's sample rate ({:.4} Hz, from {}): a sample-and-hold clock must tick faster than the host reads",
+                    1.0 / dt,
+                    rec.path.display()
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Why the clocks were not fitted.
+enum ClockFailure {
+    /// The recording cannot resolve them (said in the calibration's note).
+    NotResolved(String),
+    Fit(FitError),
+}
+
+/// The packages' clocks fitted with the calibration (module docs); `fit0` is the fit without them.
+fn estimate_clocks(
+    rec: &Recording,
+    array: &RecordingArray,
+    seg: &Segmentation,
+    stat: &StaticData,
+    d: &DynamicData,
+    settings: &FitSettings,
+    fit0: &Fit,
+) -> Result<(Fit, ClockEstimate), ClockFailure> {
+    let not = |why: String| ClockFailure::NotResolved(why);
+    let dt = host_dt_s(&rec.t_s).ok_or_else(|| not("the recording has no time step".into()))?;
+    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.unwrap_or(0)).collect();
+    let span_s = d.t_s.last().copied().unwrap_or(0.0) - d.t_s.first().copied().unwrap_or(0.0);
+    let t_ref_s = d.t_s.first().copied().unwrap_or(0.0) + 0.5 * span_s;
+    // The sawtooth's step a host sample is at most R eps_max periods; a clock whose beat the
+    // rotation phase cannot hold a few times over is not resolved.
+    if span_s < 10.0 || d.samples() < 200 {
+        return Err(not(format!(
+            "the rotation phase ({span_s:.1} s, {} samples) is too short to resolve the packages' sample clocks (at least 10 s and 200 samples)",
+            d.samples()
+        )));
+    }
+    let dynamic_rows: Vec<usize> = seg.dynamic_intervals.iter().flat_map(|iv| iv.start..iv.end).collect();
+    let static_rows: Vec<usize> = seg.static_intervals.iter().flat_map(|iv| iv.start..iv.end).collect();
+    let offsets = gyro_offsets(rec, &dynamic_rows, &static_rows).ok_or_else(|| {
+        not("the clocks are started from the packages' own gyroscopes, and this recording or array file has no gyroscope in every package (the accelerometers alone do not tell a fast clock from a slow one)".into())
+    })?;
+    let nominal: Vec<f64> = array.packages.iter().map(|p| p.sample_clock_hz.unwrap_or(1.0 / dt)).collect();
+    let gyro = fit_packages(&offsets, &nominal, dt, t_ref_s, 5e-3)
+        .ok_or_else(|| not("too few samples with angular acceleration to measure the gyroscopes' offsets".into()))?;
+    // The gyroscopes must show the sawtooth: the offsets' scale on the fitted ages (1 for a clean
+    // measurement of a clock read by sample-and-hold) above 0.25 and 10 sigma on every clocked
+    // package, else this recording does not resolve the clocks (or the board has no such effect)
+    // and the fit goes without them.
+    if let Some((p, g)) = gyro.iter().enumerate().find(|(p, g)| {
+        array.packages[*p].free_running() && !(g.amplitude > 10.0 * g.amplitude_sigma && g.amplitude > 0.25)
+    }) {
+        return Err(not(format!(
+            "package {} ({}): its gyroscope's time offsets show no sawtooth of its clock (scale on the fitted ages {:.3} +- {:.3}; a clock read by sample-and-hold gives about 1)",
+            p + 1,
+            array.packages[p].name,
+            g.amplitude,
+            g.amplitude_sigma
+        )));
+    }
+    let start: Vec<Option<SampleClock>> =
+        array.packages.iter().zip(&gyro).map(|(p, g)| p.free_running().then_some(g.clock)).collect();
+    // The common part (the gauge of the accelerometers' model) stays where the gyroscopes put it;
+    // its sigma: the halves' spread of the gyroscopes' clocks, over the root of the packages (the
+    // common part is their mean).
+    let halves = half_differences(&offsets, &gyro, t_ref_s);
+    let clocked: Vec<usize> = (0..start.len()).filter(|&p| start[p].is_some()).collect();
+    let common_sigma = [0, 1, 2].map(|a| {
+        let ms = clocked.iter().map(|&p| (0.5 * halves[p][a]).powi(2)).sum::<f64>() / clocked.len().max(1) as f64;
+        (ms / clocked.len().max(1) as f64).sqrt()
+    });
+    // A floor under the relative part's sigmas: the gyroscopes' halves' spread per package (the
+    // accelerometers refine the clocks, but their linearised sigmas rest on white residuals,
+    // and the misfit is V-shaped at the wraps).
+    let gyro_relative_sigma = [0, 1, 2].map(|a| {
+        let ms = clocked.iter().map(|&p| (0.5 * halves[p][a]).powi(2)).sum::<f64>() / clocked.len().max(1) as f64;
+        ms.sqrt()
+    });
+    let mut clocks = start.clone();
+    let mut fit = fit0.clone();
+    let iterations = 2;
+    let before = dynamic_rms(fit0);
+    let all = 0..d.samples();
+    let problem_at = |fit: &Fit| {
+        let sens = sensors(&array.array, &fit.params);
+        let weights: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+        ClockProblem::new(&sens, d, &fit.motion, &weights, &package_of)
+    };
+    for outer in 0..iterations {
+        let problem = problem_at(&fit);
+        clocks = problem.relative_steps(&clocks, all.clone(), 3).0;
+        let timing = problem.timing(&clocks);
+        let corrected = DynamicData {
+            outputs: problem.corrected(&d.outputs, &clocks, &timing),
+            extra_unknowns_per_sample: TIMING_UNKNOWNS_PER_SAMPLE,
+            ..d.clone()
+        };
+        // Only the last refit runs to convergence: the ones before it only move the parameters
+        // near enough for the clocks' next linearisation.
+        let last = outer + 1 == iterations;
+        let refit = FitSettings { max_iterations: if last { settings.max_iterations } else { 6 }, ..*settings };
+        fit = fit_from(&array.array, stat, Some(&corrected), &refit, Some(&fit)).map_err(ClockFailure::Fit)?;
+    }
+    // The relative part's sigmas: the linearised normal matrix at the final parameters, checked
+    // on the two halves of the rotation phase (each fitted apart from the final clocks): the RMS
+    // of their relative rate offsets' difference over its sigma (the Birge ratio) inflates every
+    // sigma where it exceeds 1.
+    let problem = problem_at(&fit);
+    let (clocks_final, normal, _) = problem.relative_steps(&clocks, all.clone(), 1);
+    clocks = clocks_final;
+    let timing = problem.timing(&clocks);
+    let split = d.t_s.partition_point(|&t| t < t_ref_s);
+    // Each half starts from the final clocks and moves to its own optimum (from the gyroscopes'
+    // clocks a half may not move at all, and two unmoved halves would make the check vacuous).
+    let (c1, n1, _) = problem.relative_steps(&clocks, 0..split, 4);
+    let (c2, n2, _) = problem.relative_steps(&clocks, split..d.samples(), 4);
+    let relative_rate = |c: &[Option<SampleClock>]| -> Vec<f64> {
+        let mean = clocked.iter().filter_map(|&p| c[p].map(|c| c.rate_offset)).sum::<f64>() / clocked.len() as f64;
+        clocked.iter().map(|&p| c[p].map_or(0.0, |c| c.rate_offset) - mean).collect()
+    };
+    let relative_cov = |n: &DMatrix<f64>| -> DMatrix<f64> { crate::stats::symmetric_pinv(n, 1e-12).0 };
+    let (cov, cov1, cov2) = (relative_cov(&normal), relative_cov(&n1), relative_cov(&n2));
+    let (r1, r2) = (relative_rate(&c1), relative_rate(&c2));
+    let k = clocked.len();
+    let mut z2 = 0.0;
+    let mut d2 = 0.0;
+    for c in 0..k {
+        let diff = r1[c] - r2[c];
+        let var = cov1[(3 * c, 3 * c)].max(0.0) + cov2[(3 * c, 3 * c)].max(0.0);
+        z2 += diff * diff / var.max(1e-300);
+        d2 += diff * diff;
+    }
+    // Halves that did not move from the final clocks test nothing: no ratio then (NaN, null in
+    // the JSON), and the sigmas rest on the linearisation and the gyroscopes' floor alone.
+    let moved = c1 != clocks || c2 != clocks;
+    let birge_ratio = if moved { (z2 / k.max(1) as f64).sqrt() } else { f64::NAN };
+    let inflation = if moved { birge_ratio.max(1.0) } else { 1.0 };
+    let sigma_check = SigmaCheck { birge_ratio, inflation, half_difference_rms: (d2 / k.max(1) as f64).sqrt() };
+    let mut c = 0;
+    let sigma = clocks
+        .iter()
+        .map(|cl| {
+            cl.map(|_| {
+                let s = [0, 1, 2].map(|a| {
+                    let linear = cov[(3 * c + a, 3 * c + a)].max(0.0).sqrt() * inflation;
+                    linear.max(gyro_relative_sigma[a]).hypot(common_sigma[a])
+                });
+                c += 1;
+                s
+            })
+        })
+        .collect();
+    let after = dynamic_rms(&fit);
+    if !(after <= before) {
+        // A timing model that makes the misfit worse did not converge to the clocks (a subset of
+        // a board, say, whose calibration is not identifiable): it is left out, saying so.
+        return Err(not(format!(
+            "the clock model made the rotation phase's misfit worse ({before:.3} -> {after:.3} m/s^2 RMS), so it is not used"
+        )));
+    }
+    // The null: the same clocks read later by 1/100 ... 99/100 of the rotation phase (ages with
+    // the clocks' statistics, decorrelated from the samples).
+    let shifts: Vec<f64> = (1..=NULL_SHIFTS).map(|k| span_s * k as f64 / (NULL_SHIFTS + 1) as f64).collect();
+    let (share_removed, null_shares_removed) = problem.shares_removed(&clocks, &shifts);
+    let estimate = ClockEstimate {
+        share_removed,
+        null_shares_removed,
+        clocks,
+        sigma,
+        common_sigma,
+        sigma_check,
+        timing,
+        start: "the sawtooth of the packages' own gyroscopes' time offsets",
+        gyroscope_clocks: Some(start),
+        residual_rms_before_m_s2: before,
+        residual_rms_after_m_s2: after,
+        iterations,
+    };
+    Ok((fit, estimate))
+}
+
+/// The number of time shifts of the clocks' null: the fitted clocks' share ranks among them
+/// with a p-value down to `1 / (NULL_SHIFTS + 1)` = 0.01.
+pub const NULL_SHIFTS: usize = 99;
+
+/// The RMS over accelerometers of a fit's dynamic residual RMS.
+fn dynamic_rms(fit: &Fit) -> f64 {
+    let v: Vec<f64> = fit.dynamic_residual_rms_m_s2.iter().copied().filter(|v| v.is_finite()).collect();
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
 }
 
 /// The dynamic samples of a recording, ready for the fit.
@@ -203,6 +489,7 @@ pub fn prepare_dynamic(
             let b = gyro_bias_rad_s.unwrap_or_default();
             index.iter().map(|&i| rec.gyro_rate_rad_s[i] - b).collect()
         }),
+        extra_unknowns_per_sample: 0,
     });
     PreparedDynamic { data, index, clipped_outputs, dropped_samples }
 }

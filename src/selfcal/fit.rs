@@ -14,59 +14,23 @@
 //! - The gauge (`selfcal::model::Gauge`) is fixed by linear constraints in the step's KKT system;
 //!   the covariance is the constrained inverse of the Fisher information, i.e. the Cramer-Rao
 //!   bound in the stated gauge. Before it is fixed, the Fisher information's null directions are
-//!   counted: they must be exactly the gauge's.
+//!   counted. Any beyond the gauge's are combinations the data cannot see (`selfcal::unseen`):
+//!   they are held where the fit starts by constraint rows beside the gauge's, every parameter
+//!   with a share in them is unidentified (NaN sigma, listed in [`Fit::unseen`]), and the rest are
+//!   calibrated. A geometry or a recording that cannot see everything is named, not refused.
 
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord, clippy::useless_vec)]
 
 use nalgebra::{DMatrix, DVector, SMatrix, Vector3};
 use rayon::prelude::*;
 
+use super::data::{DynamicData, StaticData};
 use super::model::{Gauge, PER_ACCEL, SampleMotion, Sensor, SensorSet, sensors};
 use super::motion::{self, SampleData};
 use super::track;
+use super::unseen::{Combination, NULL_RELATIVE, Unseen, unseen};
 use crate::array::Array;
 use crate::sensor::misalignment::tilt_basis;
-
-/// The static phase: one mean per interval and accelerometer.
-#[derive(Debug, Clone)]
-pub struct StaticData {
-    /// Intervals x accelerometers, output units.
-    pub means: DMatrix<f64>,
-    pub counts: Vec<usize>,
-    /// Pooled within-interval standard deviation of one sample, per accelerometer.
-    pub sigma: Vec<f64>,
-}
-
-/// The dynamic phase: samples in runs of consecutive samples.
-#[derive(Debug, Clone)]
-pub struct DynamicData {
-    pub t_s: Vec<f64>,
-    /// Samples x accelerometers.
-    pub outputs: DMatrix<f64>,
-    /// Samples x accelerometers, row-major: the output is used (not clipped).
-    pub used: Vec<bool>,
-    /// Start index of each run (the first is 0).
-    pub run_starts: Vec<usize>,
-    /// Reference rate per sample (array axes), when the rate is taken from gyroscopes.
-    pub reference_rate_rad_s: Option<Vec<Vector3<f64>>>,
-}
-
-impl DynamicData {
-    pub fn samples(&self) -> usize {
-        self.t_s.len()
-    }
-    /// `(start, end)` of every run of consecutive samples.
-    pub fn runs(&self) -> Vec<(usize, usize)> {
-        let mut v = Vec::new();
-        for (i, &s) in self.run_starts.iter().enumerate() {
-            let e = self.run_starts.get(i + 1).copied().unwrap_or(self.samples());
-            if e > s {
-                v.push((s, e));
-            }
-        }
-        v
-    }
-}
 
 /// Settings of the estimator.
 #[derive(Debug, Clone, Copy)]
@@ -91,12 +55,19 @@ pub struct Fit {
     /// Sigma of each sample's rate given the sensor parameters (rad/s, per axis).
     pub omega_sigma_rad_s: Vec<Vector3<f64>>,
     /// Covariance of `(accelerometer parameters, pose tangents)`, in the gauge; NaN rows for
-    /// parameters the data cannot identify (locations without a dynamic phase).
+    /// parameters the data cannot identify (locations without a dynamic phase, and every parameter
+    /// with a share in an unseen combination).
     pub covariance: DMatrix<f64>,
     pub locations_identified: bool,
     pub gauge: Gauge,
     /// Null directions of the Fisher information before the gauge is fixed.
     pub null_directions: usize,
+    /// The null directions beyond the gauge's: parameter combinations the data cannot see (held
+    /// at their start; see `selfcal::unseen`). Empty when the data see everything but the gauge.
+    pub unseen: Vec<Combination>,
+    /// Per parameter (accelerometer parameters, then pose tangents): it has a share in an unseen
+    /// combination, so it has no value and no sigma.
+    pub unseen_parameters: Vec<bool>,
     pub static_chi2_dof: f64,
     pub static_residual_rms_m_s2: f64,
     pub static_variance_factor: f64,
@@ -107,12 +78,33 @@ pub struct Fit {
     pub dynamic_chi2_dof: f64,
     pub iterations: usize,
     pub converged: bool,
+    /// Every damped Gauss-Newton trial step, in order (for a caller that wants to see the solver
+    /// work: the library itself never prints).
+    pub trace: Vec<GnTrial>,
+    /// The smallest eigenvalues (up to 10, ascending) of the Fisher information scaled by its
+    /// diagonal, relative to the largest: the null-direction count's evidence.
+    pub smallest_scaled_eigenvalues: Vec<f64>,
+}
+
+/// One trial step of the damped Gauss-Newton solver.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GnTrial {
+    pub iteration: usize,
+    pub lambda: f64,
+    /// The cost before the step and at the trial point (a chi-square: weights are inverse
+    /// variances).
+    pub cost: f64,
+    pub trial_cost: f64,
 }
 
 impl Fit {
-    /// Sigma of parameter `p` of accelerometer `j`.
+    /// Sigma of parameter `p` of accelerometer `j` (NaN where not identifiable).
     pub fn sigma(&self, j: usize, p: usize) -> f64 {
         self.covariance[(PER_ACCEL * j + p, PER_ACCEL * j + p)].sqrt()
+    }
+    /// Whether parameter `p` of accelerometer `j` is identified (a finite sigma).
+    pub fn identified(&self, j: usize, p: usize) -> bool {
+        self.sigma(j, p).is_finite()
     }
 }
 
@@ -170,6 +162,19 @@ pub fn fit(
     dynamic: Option<&DynamicData>,
     settings: &FitSettings,
 ) -> Result<Fit, FitError> {
+    fit_from(array, stat, dynamic, settings, None)
+}
+
+/// [`fit`] started from an earlier fit of the same recording (its parameters, poses, motion and
+/// variance components), e.g. after the dynamic outputs were corrected: the static-only start
+/// and the motion's tracking from scratch are skipped.
+pub fn fit_from(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: Option<&DynamicData>,
+    settings: &FitSettings,
+    start: Option<&Fit>,
+) -> Result<Fit, FitError> {
     let n = array.len();
     let poses = stat.means.nrows();
     let with_dynamic = dynamic.is_some_and(|d| d.samples() > 0);
@@ -200,7 +205,7 @@ pub fn fit(
             }
         }
     }
-    let constraints = gauge.constraints(array, with_dynamic, 2 * poses);
+    let gauge_constraints = gauge.constraints(array, with_dynamic, 2 * poses);
 
     let mut state = State {
         params: SensorSet::nominal(n),
@@ -214,19 +219,29 @@ pub fn fit(
     let mut static_factor = 1.0;
     let mut iterations = 0;
     let mut converged = false;
-
-    // First the static phase alone (locations held), then both phases.
-    let static_only_active: Vec<bool> =
-        (0..dim).map(|i| active[i] && (i >= PER_ACCEL * n || i % PER_ACCEL < 4)).collect();
-    let static_gauge = Gauge { rotation: true, translation: false, scale: false };
-    let static_constraints = static_gauge.constraints(array, false, 2 * poses);
-    gauss_newton(array, stat, None, settings, &weights, &static_only_active, &static_constraints, &mut state, 30);
-
-    if let Some(d) = dynamic.filter(|_| with_dynamic) {
-        state.motion = track::from_scratch(array, d, &weights.dynamic_w, &state.params);
+    let mut trace = Vec::new();
+    if let Some(s) = start.filter(|s| s.motion.len() == dynamic.map_or(0, |d| d.samples())) {
+        state = State { params: s.params.clone(), up: s.up.clone(), motion: s.motion.clone() };
+        static_factor = s.static_variance_factor;
+        weights.static_w =
+            DMatrix::from_fn(poses, n, |p, j| stat.counts[p] as f64 / (stat.sigma[j].powi(2) * static_factor));
+        if s.dynamic_sigma_m_s2.iter().all(|v| v.is_finite() && *v > 0.0) {
+            weights.dynamic_w = s.dynamic_sigma_m_s2.iter().map(|v| 1.0 / (v * v)).collect();
+        }
+    } else {
+        fit_start(array, stat, dynamic, settings, &weights, &active, with_dynamic, &mut state, &mut trace);
     }
+
+    // Combinations the data cannot see beyond the gauge are held where they start.
+    let (constraints, values) = {
+        let normal =
+            normal_equations(array, stat, dynamic.filter(|_| with_dynamic), settings, &weights, &state, &active);
+        let seen = unseen(&normal.h, &gauge_constraints, &active);
+        pinned(&gauge_constraints, &seen, &state)
+    };
+    let warm = start.is_some();
     for round in 0..4 {
-        if round > 0
+        if (round > 0 || warm)
             && let Some(d) = dynamic.filter(|_| with_dynamic)
         {
             state.motion = track::refine(array, d, &weights.dynamic_w, &state.params, &state.motion, true);
@@ -239,8 +254,10 @@ pub fn fit(
             &weights,
             &active,
             &constraints,
+            &values,
             &mut state,
             settings.max_iterations,
+            &mut trace,
         );
         iterations += it;
         converged = ok;
@@ -253,7 +270,7 @@ pub fn fit(
             DMatrix::from_fn(poses, n, |p, j| stat.counts[p] as f64 / (stat.sigma[j].powi(2) * static_factor));
         if let Some(d) = dynamic.filter(|_| with_dynamic) {
             let (rms, _) = dynamic_residuals(array, d, &state);
-            let local = if reference_rate { 6.0 } else { 9.0 };
+            let local = if reference_rate { 6.0 } else { 9.0 } + d.extra_unknowns_per_sample as f64;
             for j in 0..n {
                 let leverage = dynamic_leverage(d, j, local);
                 let var = rms[j].powi(2) * leverage;
@@ -270,8 +287,20 @@ pub fn fit(
 
     // Covariance and null directions at the solution.
     let normal = normal_equations(array, stat, dynamic.filter(|_| with_dynamic), settings, &weights, &state, &active);
-    let null_directions = count_null(&normal.h, &active);
-    let covariance = constrained_inverse(&normal.h, &constraints, &active)?;
+    let (null_directions, smallest_scaled_eigenvalues) = count_null(&normal.h, &active);
+    let mut seen = unseen(&normal.h, &gauge_constraints, &active);
+    let (all_constraints, _) = pinned(&gauge_constraints, &seen, &state);
+    if !seen.is_empty() {
+        // Beside the unseen space (to rounding), a parameter whose variance is not positive is
+        // not seen either.
+        let mut probe = vec![false; active.len()];
+        let cov = constrained_inverse(&normal.h, &all_constraints, &active, &probe, true)?;
+        for i in 0..active.len() {
+            probe[i] = active[i] && !(cov[(i, i)] > 0.0);
+            seen.parameters[i] |= probe[i];
+        }
+    }
+    let covariance = constrained_inverse(&normal.h, &all_constraints, &active, &seen.parameters, false)?;
     let omega_sigma_rad_s = match dynamic.filter(|_| with_dynamic) {
         Some(d) => {
             track::rate_sigmas(array, d, &weights.dynamic_w, &state.params, &state.motion, reference_rate, &covariance)
@@ -283,7 +312,7 @@ pub fn fit(
     let (dyn_rms, dyn_chi2_dof) = match dynamic.filter(|_| with_dynamic) {
         Some(d) => {
             let (rms, _) = dynamic_residuals(array, d, &state);
-            let local = if reference_rate { 6.0 } else { 9.0 };
+            let local = if reference_rate { 6.0 } else { 9.0 } + d.extra_unknowns_per_sample as f64;
             let mut num = 0.0;
             let mut den = 0.0;
             for j in 0..n {
@@ -304,6 +333,8 @@ pub fn fit(
         locations_identified: with_dynamic,
         gauge,
         null_directions,
+        unseen: seen.combinations,
+        unseen_parameters: seen.parameters,
         static_chi2_dof: chi2 / dof,
         static_residual_rms_m_s2,
         static_variance_factor: static_factor,
@@ -312,7 +343,49 @@ pub fn fit(
         dynamic_chi2_dof: dyn_chi2_dof,
         iterations,
         converged,
+        trace,
+        smallest_scaled_eigenvalues,
     })
+}
+
+/// The cold start of [`fit_from`]: the static phase alone (locations held), then the motion of
+/// every dynamic sample tracked from scratch.
+#[allow(clippy::too_many_arguments)]
+fn fit_start(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: Option<&DynamicData>,
+    settings: &FitSettings,
+    weights: &Weights,
+    active: &[bool],
+    with_dynamic: bool,
+    state: &mut State,
+    trace: &mut Vec<GnTrial>,
+) {
+    let (n, poses, dim) = (array.len(), stat.means.nrows(), active.len());
+    // First the static phase alone (locations held), then both phases.
+    let static_only_active: Vec<bool> =
+        (0..dim).map(|i| active[i] && (i >= PER_ACCEL * n || i % PER_ACCEL < 4)).collect();
+    let static_gauge = Gauge { rotation: true, translation: false, scale: false };
+    let static_constraints = static_gauge.constraints(array, false, 2 * poses);
+    let zeros = DVector::zeros(static_constraints.nrows());
+    gauss_newton(
+        array,
+        stat,
+        None,
+        settings,
+        weights,
+        &static_only_active,
+        &static_constraints,
+        &zeros,
+        state,
+        30,
+        trace,
+    );
+
+    if let Some(d) = dynamic.filter(|_| with_dynamic) {
+        state.motion = track::from_scratch(array, d, &weights.dynamic_w, &state.params);
+    }
 }
 
 /// `n_j / (n_j - leverage_j)` for accelerometer j: the factor from the residual mean square to
@@ -340,8 +413,10 @@ fn gauss_newton(
     w: &Weights,
     active: &[bool],
     constraints: &DMatrix<f64>,
+    values: &DVector<f64>,
     state: &mut State,
     max_iterations: usize,
+    trace: &mut Vec<GnTrial>,
 ) -> (usize, bool) {
     let dynamic = dynamic.filter(|d| d.samples() > 0);
     let mut lambda = 1e-6;
@@ -350,15 +425,13 @@ fn gauss_newton(
         let normal = normal_equations(array, stat, dynamic, settings, w, state, active);
         let mut accepted = false;
         for _ in 0..12 {
-            let Some(step) = kkt_step(&normal, constraints, active, state, lambda, array.len()) else {
+            let Some(step) = kkt_step(&normal, constraints, values, active, state, lambda, array.len()) else {
                 lambda *= 10.0;
                 continue;
             };
             let trial = apply_step(array, dynamic, w, state, &step);
             let trial_cost = total_cost(array, stat, dynamic, settings, w, &trial);
-            if std::env::var("GFCAL_DEBUG").is_ok() {
-                eprintln!("it {it} lambda {lambda:.1e} cost {cost:.6e} trial {trial_cost:.6e}");
-            }
+            trace.push(GnTrial { iteration: it, lambda, cost, trial_cost });
             if trial_cost <= cost {
                 let decrease = cost - trial_cost;
                 *state = trial;
@@ -618,10 +691,36 @@ struct SampleScratch {
 
 type SVector9 = nalgebra::SVector<f64, 9>;
 
-/// Solves the damped, gauge-constrained step; `None` when singular.
+/// The gauge's rows and the unseen combinations' rows, with the values that hold them: zero for
+/// the gauge, the current value for an unseen combination.
+fn pinned(gauge: &DMatrix<f64>, seen: &Unseen, state: &State) -> (DMatrix<f64>, DVector<f64>) {
+    let (ng, dim) = gauge.shape();
+    let rows = seen.rows();
+    let mut c = DMatrix::zeros(ng + rows.nrows(), dim);
+    c.view_mut((0, 0), (ng, dim)).copy_from(gauge);
+    c.view_mut((ng, 0), (rows.nrows(), dim)).copy_from(&rows);
+    let x = parameter_vector(state, dim);
+    let mut values = &c * x;
+    values.rows_mut(0, ng).fill(0.0);
+    (c, values)
+}
+
+/// The accelerometer parameters' values, then zeros for the pose tangents (`dim` in all).
+fn parameter_vector(state: &State, dim: usize) -> DVector<f64> {
+    let mut x = DVector::zeros(dim);
+    for j in 0..state.params.len() {
+        for p in 0..PER_ACCEL {
+            x[PER_ACCEL * j + p] = state.params.get(j, p);
+        }
+    }
+    x
+}
+
+/// Solves the damped, constrained step (`C (x + step) = values`); `None` when singular.
 fn kkt_step(
     normal: &Normal,
     constraints: &DMatrix<f64>,
+    values: &DVector<f64>,
     active: &[bool],
     state: &State,
     lambda: f64,
@@ -642,25 +741,24 @@ fn kkt_step(
     k.view_mut((dim, 0), (nc, dim)).copy_from(constraints);
     k.view_mut((0, dim), (dim, nc)).copy_from(&constraints.transpose());
     rhs.rows_mut(0, dim).copy_from(&normal.g);
-    // Constraint on the values: C (x + step) = 0.
-    let mut x = DVector::zeros(dim);
-    for j in 0..n {
-        for p in 0..PER_ACCEL {
-            x[PER_ACCEL * j + p] = state.params.get(j, p);
-        }
-    }
+    // Constraint on the values: C (x + step) = values.
+    debug_assert_eq!(state.params.len(), n);
+    let x = parameter_vector(state, dim);
     let cx = constraints * &x;
-    rhs.rows_mut(dim, nc).copy_from(&(-cx));
+    rhs.rows_mut(dim, nc).copy_from(&(values - cx));
     let sol = k.lu().solve(&rhs)?;
     let step = sol.rows(0, dim).into_owned();
     step.iter().all(|v| v.is_finite()).then_some(step)
 }
 
-/// Covariance in the gauge: the top-left block of the inverse KKT matrix.
+/// Covariance in the gauge: the top-left block of the inverse KKT matrix, NaN on the inactive
+/// parameters and on those of an unseen combination (`unseen`, held by rows of `constraints`).
 fn constrained_inverse(
     h: &DMatrix<f64>,
     constraints: &DMatrix<f64>,
     active: &[bool],
+    unseen: &[bool],
+    lenient: bool,
 ) -> Result<DMatrix<f64>, FitError> {
     let dim = h.nrows();
     let nc = constraints.nrows();
@@ -676,31 +774,30 @@ fn constrained_inverse(
     let inv = k.try_inverse().ok_or_else(|| FitError::Singular("the constrained Fisher information".into()))?;
     let mut cov = inv.view((0, 0), (dim, dim)).into_owned();
     for i in 0..dim {
-        if !active[i] {
+        if !active[i] || unseen[i] {
             cov.row_mut(i).fill(f64::NAN);
             cov.column_mut(i).fill(f64::NAN);
         }
     }
-    if (0..dim).any(|i| active[i] && !(cov[(i, i)] > 0.0)) {
+    if !lenient && (0..dim).any(|i| active[i] && !unseen[i] && !(cov[(i, i)] > 0.0)) {
         return Err(FitError::Singular("a parameter's variance is not positive".into()));
     }
     Ok(cov)
 }
 
-/// Null directions of the (active part of the) Fisher information, after scaling by its diagonal.
-fn count_null(h: &DMatrix<f64>, active: &[bool]) -> usize {
+/// Null directions of the (active part of the) Fisher information, after scaling by its diagonal,
+/// and its smallest scaled eigenvalues relative to the largest (up to 10, ascending).
+fn count_null(h: &DMatrix<f64>, active: &[bool]) -> (usize, Vec<f64>) {
     let idx: Vec<usize> = (0..h.nrows()).filter(|&i| active[i]).collect();
     let m = idx.len();
     let scale: Vec<f64> = idx.iter().map(|&i| h[(i, i)].max(1e-300).sqrt()).collect();
     let s = DMatrix::from_fn(m, m, |a, b| h[(idx[a], idx[b])] / (scale[a] * scale[b]));
     let eig = s.symmetric_eigenvalues();
     let max = eig.iter().cloned().fold(0.0, f64::max);
-    if std::env::var("GFCAL_DEBUG").is_ok() {
-        let mut v: Vec<f64> = eig.iter().map(|e| e / max).collect();
-        v.sort_by(f64::total_cmp);
-        eprintln!("smallest scaled eigenvalues {:?}", &v[..10.min(v.len())]);
-    }
-    eig.iter().filter(|&&e| e < 1e-9 * max).count()
+    let mut smallest: Vec<f64> = eig.iter().map(|e| e / max).collect();
+    smallest.sort_by(f64::total_cmp);
+    smallest.truncate(10);
+    (eig.iter().filter(|&&e| e < NULL_RELATIVE * max).count(), smallest)
 }
 
 fn static_chi2(
@@ -790,7 +887,44 @@ pub fn cramer_rao(
     let state = State { params: params.clone(), up: up.to_vec(), motion: motion.to_vec() };
     let settings = FitSettings { gravity_m_s2, ..FitSettings::default() };
     let normal = normal_equations(array, &stat, dynamic.filter(|_| with_dynamic), &settings, &weights, &state, &active);
-    let null = count_null(&normal.h, &active);
+    let (null, _) = count_null(&normal.h, &active);
     let constraints = gauge.constraints(array, with_dynamic, 2 * poses);
-    Ok((constrained_inverse(&normal.h, &constraints, &active)?, null))
+    Ok((constrained_inverse(&normal.h, &constraints, &active, &vec![false; dim], false)?, null))
+}
+
+/// What the Fisher information at a known state (as [`cramer_rao`]) cannot see: its null
+/// directions before the gauge, the gauge, and the combinations beyond the gauge's.
+#[allow(clippy::too_many_arguments)]
+pub fn unseen_at(
+    array: &Array,
+    counts: &[usize],
+    sigma: &[f64],
+    up: &[Vector3<f64>],
+    dynamic: Option<&DynamicData>,
+    motion: &[SampleMotion],
+    params: &SensorSet,
+    gravity_m_s2: f64,
+) -> (usize, Gauge, Unseen) {
+    let n = array.len();
+    let poses = up.len();
+    let with_dynamic = dynamic.is_some_and(|d| d.samples() > 0);
+    let reference_rate = dynamic.and_then(|d| d.reference_rate_rad_s.as_ref()).is_some();
+    let gauge = Gauge {
+        rotation: !(with_dynamic && reference_rate),
+        translation: with_dynamic,
+        scale: with_dynamic && !reference_rate,
+    };
+    let dim = PER_ACCEL * n + 2 * poses;
+    let active: Vec<bool> = (0..dim).map(|i| with_dynamic || i >= PER_ACCEL * n || i % PER_ACCEL < 4).collect();
+    let stat = StaticData { means: DMatrix::zeros(poses, n), counts: counts.to_vec(), sigma: sigma.to_vec() };
+    let weights = Weights {
+        static_w: DMatrix::from_fn(poses, n, |p, j| counts[p] as f64 / sigma[j].powi(2)),
+        dynamic_w: sigma.iter().map(|s| 1.0 / (s * s)).collect(),
+    };
+    let state = State { params: params.clone(), up: up.to_vec(), motion: motion.to_vec() };
+    let settings = FitSettings { gravity_m_s2, ..FitSettings::default() };
+    let normal = normal_equations(array, &stat, dynamic.filter(|_| with_dynamic), &settings, &weights, &state, &active);
+    let (null, _) = count_null(&normal.h, &active);
+    let constraints = gauge.constraints(array, with_dynamic, 2 * poses);
+    (null, gauge, unseen(&normal.h, &constraints, &active))
 }

@@ -9,16 +9,26 @@
 //! - [`model`]: parameters, the output model and its derivatives, the gauge;
 //! - [`motion`]: the motion of one sample (rate sign by continuity);
 //! - [`track`]: the motion of every sample of the rotation phase (basins repaired, signed, sigmas);
-//! - [`fit`]: the joint estimator and its covariance;
-//! - [`calibrate`]: the workflow; [`output`]: its JSON.
+//! - [`data`]: the two phases' data, shared by the estimator, the tracker and the prediction;
+//! - [`fit`]: the joint estimator and its covariance; [`unseen`]: what it cannot see beyond the
+//!   gauge; [`geometry`]: what an array's geometry cannot see, on synthetic data;
+//! - [`calibrate`]: the workflow; [`output`]: its JSON; [`assessment`]: what to trust in it.
 
+pub mod assessment;
 pub mod calibrate;
+pub mod clock;
+pub mod data;
 pub mod fit;
+pub mod geometry;
 pub mod model;
 pub mod motion;
 pub mod output;
 pub mod predict;
 pub mod recording;
+pub mod sampling;
 pub mod segment;
 pub mod simulate;
+pub mod timing;
 pub mod track;
+pub mod unseen;
+pub mod vibration;

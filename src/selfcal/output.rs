@@ -6,13 +6,21 @@
 //! cannot identify), `poses: [{start_s, end_s, up_x, up_y, up_z}]`, `static: {intervals,
 //! chi2_dof, residual_rms_m_s2}`, `dynamic: {samples, clipped, residual_rms_m_s2}`, `gyro_check:
 //! {samples, rms_rad_s, relative}` (when reference gyroscopes are given), and further keys that
-//! say how the result was obtained.
+//! say how the result was obtained. A parameter the recording cannot identify (a location without
+//! a rotation phase, or one with a share in a combination the Fisher information cannot see beyond
+//! the gauge) has `value` and `sigma` null and is named in `unidentified`; the combinations are in
+//! `unseen_combinations: [{combination, components: [{parameter, weight}]}]` and what would make
+//! them identifiable in `to_identify` (a list of sentences).
+
+use std::path::{Path, PathBuf};
 
 use serde_json::{Value, json};
 
 use super::calibrate::Calibration;
 use super::model::{NAMES, PER_ACCEL, UNITS};
-use super::recording::{Recording, RecordingArray};
+use super::predict::HeldOut;
+use super::recording::Recording;
+use crate::array::wiring::RecordingArray;
 
 fn num(v: f64) -> Value {
     if v.is_finite() { json!(v) } else { Value::Null }
@@ -34,7 +42,7 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
             parameters.push(json!({
                 "accelerometer": j + 1,
                 "name": NAMES[p],
-                "value": fit.params.get(j, p),
+                "value": if identified { json!(fit.params.get(j, p)) } else { Value::Null },
                 "sigma": num(sigma),
                 "unit": UNITS[p],
             }));
@@ -59,6 +67,11 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
         "rate_source": if cal.use_gyro { "reference gyroscopes (--use-gyro)" } else { "accelerometers (gyroscope-free)" },
         "parameters": parameters,
         "unidentified": unidentified,
+        "unseen_combinations": fit.unseen.iter().map(|c| json!({
+            "combination": super::unseen::describe(c, n),
+            "components": c.components.iter().map(|(i, w)| json!({"parameter": super::unseen::name(*i, n), "weight": w})).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+        "to_identify": cal.to_identify,
         "poses": poses,
         "static": {
             "intervals": cal.segmentation.static_intervals.len(),
@@ -84,6 +97,7 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
         "gauge": {
             "null_directions": fit.null_directions,
             "expected_null_directions": fit.gauge.count(),
+            "unseen_beyond_gauge": fit.unseen.len(),
             "conditions": fit.gauge.describe(),
         },
         "fit": {"iterations": fit.iterations, "converged": fit.converged},
@@ -107,5 +121,122 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
     if let Some(b) = cal.gyro_bias_rad_s {
         out["gyro_bias_rad_s"] = json!([b.x, b.y, b.z]);
     }
+    if let Some(c) = &cal.clocks {
+        out["sample_clocks"] = sample_clocks_json(c, array);
+        out["sample_clock_model"] = json!({
+            "started_from": c.start,
+            "iterations": c.iterations,
+            "dynamic_residual_rms_before_m_s2": num(c.residual_rms_before_m_s2),
+            "dynamic_residual_rms_after_m_s2": num(c.residual_rms_after_m_s2),
+            "gauge": SAMPLE_CLOCK_GAUGE,
+            "timing_unknowns_per_sample": super::timing::TIMING_UNKNOWNS_PER_SAMPLE,
+            "share_removed": num(c.share_removed),
+            "null_shares_removed": c.null_shares_removed.iter().map(|v| num(*v)).collect::<Vec<_>>(),
+            "null_p_value": num(c.null_p_value()),
+            "common_sigma": {
+                "rate_offset_ppm": num(c.common_sigma[0] * 1e6),
+                "drift_ppm_per_s": num(c.common_sigma[1] * 1e6),
+                "phase_s": num(c.common_sigma[2]),
+            },
+            "sigma_check": {
+                "method": SAMPLE_CLOCK_SIGMA_CHECK,
+                "birge_ratio": num(c.sigma_check.birge_ratio),
+                "inflation": num(c.sigma_check.inflation),
+                "half_difference_rms_ppm": num(c.sigma_check.half_difference_rms * 1e6),
+            },
+        });
+    }
+    if let Some(note) = &cal.clock_note {
+        out["sample_clock_note"] = json!(note);
+    }
     out
+}
+
+/// How the clocks' sigmas are checked, as the JSON states it.
+pub const SAMPLE_CLOCK_SIGMA_CHECK: &str = "the relative part's linearised sigmas are checked on the two halves of the rotation phase, each fitted apart from the final clocks (when neither half moves, the check is void: birge_ratio null, no inflation): the RMS of the halves' relative rate-offset difference over its sigma (the Birge ratio, 1 when the sigmas are right) multiplies every linearised sigma where it exceeds 1, and no relative sigma is put below the spread of the gyroscopes' half-phase clocks (per package); the common part's sigma is the spread of the gyroscopes' half-phase clocks over the root of the number of packages";
+
+/// The gauge of the clock model, as the JSON states it.
+pub const SAMPLE_CLOCK_GAUGE: &str = "a change common to every package's clock (phase, rate, drift) moves every sample's age alike and the per-sample motion absorbs it: the accelerometers' linearised model sees the clocks relative to their mean only (3 null directions), so the common part is taken from the gyroscopes' sawtooth (a rising sawtooth with a 1 ms wrap fixes it) and only the relative part is fitted to the accelerometers; without gyroscopes, the mirror age -> period - age (every rate offset's sign flipped) fits as well, so the gyroscopes' sawtooth picks the branch";
+
+/// `sample_clocks`: per package (1-based, in the order the array file names them) its clock's
+/// rate offset `(f / f0 - 1) 1e6` in the recording's time base (positive: the package runs fast),
+/// drift and phase (the age of its sample at `phase_time_s`), with sigmas.
+fn sample_clocks_json(c: &super::timing::ClockEstimate, array: &RecordingArray) -> Value {
+    let rows: Vec<Value> = c
+        .clocks
+        .iter()
+        .zip(&c.sigma)
+        .enumerate()
+        .filter_map(|(p, (clock, sigma))| {
+            let (clock, sigma) = (clock.as_ref()?, sigma.as_ref()?);
+            let gyro = c.gyroscope_clocks.as_ref().and_then(|g| g[p]);
+            Some(json!({
+                "package": p + 1,
+                "name": array.packages.get(p).map(|q| q.name.clone()),
+                "nominal_hz": clock.nominal_hz,
+                "rate_offset_ppm": clock.rate_offset * 1e6,
+                "rate_offset_sigma_ppm": num(sigma[0] * 1e6),
+                "drift_ppm_per_s": clock.drift_per_s * 1e6,
+                "drift_sigma_ppm_per_s": num(sigma[1] * 1e6),
+                "phase_s": clock.phase_s,
+                "phase_sigma_s": num(sigma[2]),
+                "phase_time_s": clock.t_ref_s,
+                "gyroscope_rate_offset_ppm": gyro.map(|g| g.rate_offset * 1e6),
+            }))
+        })
+        .collect();
+    Value::Array(rows)
+}
+
+/// [`to_json`] with the held-out recordings' predictions (`held_out`), the time the
+/// calibration took (`elapsed_s`), the verdict on what to trust (`assessment: [{kind,
+/// trustworthy, reason}]`, `selfcal::assessment`) and provenance as `run.json` has it
+/// (`gfcal_version`, `git_commit`, `started`, `finished`: RFC 3339, UTC), as `gfcal calibrate
+/// --json` writes it.
+pub fn to_json_with(
+    cal: &Calibration,
+    rec: &Recording,
+    array: &RecordingArray,
+    held: &[(PathBuf, HeldOut)],
+    elapsed_s: f64,
+    started: &str,
+) -> Value {
+    let mut json = to_json(cal, rec, array);
+    json["held_out"] = Value::Array(held.iter().map(|(p, h)| held_out_json(p, h)).collect());
+    json["elapsed_s"] = serde_json::json!(elapsed_s);
+    json["assessment"] = assessment_json(cal, held);
+    json["gfcal_version"] = json!(env!("CARGO_PKG_VERSION"));
+    json["git_commit"] = json!(env!("GFCAL_GIT_COMMIT"));
+    json["started"] = json!(started);
+    json["finished"] = json!(humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string());
+    json
+}
+
+/// The verdicts of `selfcal::assessment` for `cal` and its held-out recordings.
+pub fn verdicts(cal: &Calibration, held: &[(PathBuf, HeldOut)]) -> Vec<super::assessment::Verdict> {
+    let held_chi2: Vec<f64> = held.iter().map(|(_, h)| h.static_chi2_dof).collect();
+    super::assessment::assess(cal, &held_chi2)
+}
+
+fn assessment_json(cal: &Calibration, held: &[(PathBuf, HeldOut)]) -> Value {
+    Value::Array(
+        verdicts(cal, held)
+            .iter()
+            .map(|v| json!({"kind": v.kind, "trustworthy": v.trustworthy, "reason": v.reason}))
+            .collect(),
+    )
+}
+
+/// A held-out recording's prediction as JSON.
+pub fn held_out_json(path: &Path, h: &HeldOut) -> Value {
+    json!({
+        "recording": path.display().to_string(),
+        "static_intervals": h.static_intervals,
+        "static_residual_rms_m_s2": num(h.static_residual_rms_m_s2),
+        "static_noise_rms_m_s2": num(h.static_noise_rms_m_s2),
+        "static_chi2_dof": num(h.static_chi2_dof),
+        "dynamic_samples": h.dynamic_samples,
+        "dynamic_residual_rms_m_s2": num(h.dynamic_residual_rms_m_s2),
+        "dynamic_noise_rms_m_s2": num(h.dynamic_noise_rms_m_s2),
+    })
 }

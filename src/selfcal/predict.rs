@@ -6,7 +6,7 @@
 use nalgebra::Vector3;
 
 use super::calibrate::{prepare_dynamic, static_data};
-use super::fit::{DynamicData, StaticData};
+use super::data::{DynamicData, StaticData};
 use super::model::{SampleMotion, SensorSet, sensors};
 use super::recording::Recording;
 use super::segment::{DetectorSettings, segment};
@@ -200,7 +200,7 @@ pub fn predict_with_state(
 /// The up direction of static interval `p` given the sensors: Gauss-Newton on two tangent angles.
 pub fn solve_pose(
     sens: &[super::model::Sensor],
-    stat: &super::fit::StaticData,
+    stat: &super::data::StaticData,
     p: usize,
     gravity_m_s2: f64,
 ) -> Vector3<f64> {

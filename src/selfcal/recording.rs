@@ -1,50 +1,15 @@
 //! A recording of a real (or simulated) array: one row per sample, the accelerometer outputs
-//! read from the columns the array file names, the time `t_s`, an optional `step` column (a
-//! lab's own segmentation: rows of one step are one static pose; a negative step is dynamic), and
-//! the reference gyroscopes if the array file lists any.
+//! read from the columns the array file names, the time in seconds (the column the array file's
+//! `time_column` names, default `t_s`), an optional `step` column (a lab's own segmentation: rows
+//! of one step are one static pose; a negative step is dynamic), and the reference gyroscopes if
+//! the array file lists any.
 
 use std::path::{Path, PathBuf};
 
 use nalgebra::{DMatrix, Vector3};
 
-use crate::array::Array;
+use crate::array::wiring::RecordingArray;
 use crate::io::table::{Table, TableError};
-
-/// A reference gyroscope axis (array frame, unit), the column it is read from and its range.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ReferenceGyro {
-    pub axis: Vector3<f64>,
-    pub column: String,
-    pub range_rad_s: f64,
-}
-
-/// An array with what a recording needs: the column of every accelerometer, its range, and the
-/// reference gyroscopes.
-#[derive(Debug, Clone)]
-pub struct RecordingArray {
-    pub array: Array,
-    pub accelerometer_columns: Vec<String>,
-    /// Outputs with `|s| >= range` are clipped (infinite: never).
-    pub ranges_m_s2: Vec<f64>,
-    pub gyroscopes: Vec<ReferenceGyro>,
-    /// The array file, for messages.
-    pub path: PathBuf,
-}
-
-impl RecordingArray {
-    /// An array with the default columns `s1..sN`, no range (never clipped) and no gyroscopes;
-    /// `path` names it in messages.
-    pub fn plain(array: Array, path: &std::path::Path) -> Self {
-        let n = array.len();
-        Self {
-            array,
-            accelerometer_columns: (1..=n).map(|j| format!("s{j}")).collect(),
-            ranges_m_s2: vec![f64::INFINITY; n],
-            gyroscopes: Vec::new(),
-            path: path.to_path_buf(),
-        }
-    }
-}
 
 /// A recording that cannot be used; names the file, the column and the row where there is one.
 #[derive(Debug, thiserror::Error)]
@@ -54,6 +19,14 @@ pub enum RecordingError {
     Table(#[from] TableError),
     #[error("{}: missing column(s) {} named by the array file {}", path.display(), missing.join(", "), array.display())]
     MissingColumns { path: PathBuf, array: PathBuf, missing: Vec<String> },
+    #[error(
+        "{}: no time column `{column}`: a recording needs the time of every sample, in seconds, in the column the \
+         array file {}'s `time_column` names (default `t_s`); the table's columns: {}",
+        path.display(),
+        array.display(),
+        columns.join(", ")
+    )]
+    MissingTime { path: PathBuf, array: PathBuf, column: String, columns: Vec<String> },
     #[error("{}: data row {row}, column `{column}`: {problem}", path.display())]
     Value { path: PathBuf, row: usize, column: String, problem: String },
     #[error("{}: {problem}", path.display())]
@@ -75,6 +48,10 @@ pub struct Recording {
     /// whether any gyroscope axis clipped at that sample. Empty without reference gyroscopes.
     pub gyro_rate_rad_s: Vec<Vector3<f64>>,
     pub gyro_clipped: Vec<bool>,
+    /// Per package (index into the array's packages), its own gyroscope's rate in array axes
+    /// (least squares over the package's gyroscope axes), rad/s; empty for a package whose axes do
+    /// not span three dimensions, and empty altogether unless every gyroscope names its package.
+    pub package_gyro_rate_rad_s: Vec<Vec<Vector3<f64>>>,
 }
 
 /// A column's values at one magnitude this close below its stated range, held at least
@@ -143,10 +120,24 @@ impl Recording {
     /// increasing, not everything clipped.
     pub fn from_table(table: &Table, array: &RecordingArray) -> Result<Self, RecordingError> {
         let path = table.path.clone();
+        let time = array.time_column.as_str();
+        if table.index(time).is_none() {
+            // The first few columns, enough to show what the table holds.
+            const SHOWN: usize = 12;
+            let mut columns: Vec<String> = table.names.iter().take(SHOWN).map(|c| format!("`{c}`")).collect();
+            if table.names.len() > SHOWN {
+                columns.push(format!("and {} more", table.names.len() - SHOWN));
+            }
+            return Err(RecordingError::MissingTime {
+                path,
+                array: array.path.clone(),
+                column: time.to_string(),
+                columns,
+            });
+        }
         let mut missing = Vec::new();
-        let needed = std::iter::once("t_s".to_string())
-            .chain(array.accelerometer_columns.iter().cloned())
-            .chain(array.gyroscopes.iter().map(|g| g.column.clone()));
+        let needed =
+            array.accelerometer_columns.iter().cloned().chain(array.gyroscopes.iter().map(|g| g.column.clone()));
         for c in needed {
             if table.index(&c).is_none() {
                 missing.push(format!("`{c}`"));
@@ -180,12 +171,12 @@ impl Recording {
             }
             Ok(col)
         };
-        let t_s = finite_column("t_s")?.to_vec();
+        let t_s = finite_column(time)?.to_vec();
         if let Some(i) = t_s.windows(2).position(|w| w[1] <= w[0]) {
             return Err(RecordingError::Value {
                 path,
                 row: i + 2,
-                column: "t_s".into(),
+                column: time.into(),
                 problem: format!("time does not increase ({} s after {} s)", t_s[i + 1], t_s[i]),
             });
         }
@@ -255,7 +246,35 @@ impl Recording {
             }
             (rate, clip)
         };
-        Ok(Self { path, t_s, outputs, clipped, step, gyro_rate_rad_s, gyro_clipped })
+        let mut package_gyro_rate_rad_s = Vec::new();
+        if !array.gyroscopes.is_empty() && array.gyroscopes.iter().all(|g| g.package.is_some()) {
+            for p in 0..array.packages.len() {
+                let own: Vec<usize> =
+                    (0..array.gyroscopes.len()).filter(|&i| array.gyroscopes[i].package == Some(p)).collect();
+                let normal: nalgebra::Matrix3<f64> =
+                    own.iter().map(|&i| array.gyroscopes[i].axis * array.gyroscopes[i].axis.transpose()).sum();
+                let rates = match normal.try_inverse().filter(|_| normal.symmetric_eigenvalues().min() > 1e-6) {
+                    Some(inv) => {
+                        let cols: Vec<&[f64]> = own
+                            .iter()
+                            .map(|&i| finite_column(&array.gyroscopes[i].column))
+                            .collect::<Result<_, _>>()?;
+                        (0..rows)
+                            .map(|r| {
+                                inv * own
+                                    .iter()
+                                    .zip(&cols)
+                                    .map(|(&i, c)| array.gyroscopes[i].axis * c[r])
+                                    .sum::<Vector3<f64>>()
+                            })
+                            .collect()
+                    }
+                    None => Vec::new(),
+                };
+                package_gyro_rate_rad_s.push(rates);
+            }
+        }
+        Ok(Self { path, t_s, outputs, clipped, step, gyro_rate_rad_s, gyro_clipped, package_gyro_rate_rad_s })
     }
 
     /// Checks that a second recording is of the same array (for held-out prediction).

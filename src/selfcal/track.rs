@@ -19,7 +19,7 @@
 use nalgebra::{DVector, SMatrix, Vector3};
 use rayon::prelude::*;
 
-use super::fit::DynamicData;
+use super::data::DynamicData;
 use super::model::{PER_ACCEL, SampleMotion, Sensor, SensorSet, sensors};
 use super::motion::{self, SampleData};
 use crate::array::Array;

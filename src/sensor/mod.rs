@@ -8,9 +8,7 @@
 pub mod misalignment;
 pub mod noise;
 pub mod params;
-pub mod simulated;
 
 pub use misalignment::{Misalignment, TriadAngles};
 pub use noise::{NoiseGenerator, NoiseSpec, WhiteNoise};
 pub use params::{ArrayParams, Compensator, SensorParams};
-pub use simulated::SimulatedArray;

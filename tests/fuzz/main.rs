@@ -16,9 +16,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use gfcal::array::wiring::RecordingArray;
 use gfcal::config::array::load_recording_array;
 use gfcal::discrepancy::log::CalibrationLog;
-use gfcal::selfcal::recording::{Recording, RecordingArray};
+use gfcal::selfcal::recording::Recording;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -6,10 +6,10 @@ use gfcal::array::Array;
 use gfcal::calib::Form;
 use gfcal::calib::schedule::Schedule;
 use gfcal::config::simulate_log::SimulateLogConfig;
-use gfcal::discrepancy::diagnose::{DiagnoseError, fit_baseline};
 use gfcal::discrepancy::effect::{SampleContext, library};
+use gfcal::discrepancy::log::{ActiveEffect, LogSimulation, Temperature};
 use gfcal::discrepancy::log::{CalibrationLog, LogError};
-use gfcal::discrepancy::simulate::{ActiveEffect, LogSimulation, Temperature};
+use gfcal::discrepancy::log::{DiagnoseError, fit_baseline};
 use gfcal::sensor::noise::{NoiseSpec, WhiteNoise};
 use gfcal::units::{M_S2_PER_UG, STANDARD_GRAVITY_M_S2 as G};
 use nalgebra::{Matrix3, Vector3};
@@ -258,8 +258,8 @@ fn a_log_too_short_to_fit_says_how_many_steps_it_needs() {
 
 mod diagnosis {
     use super::*;
-    use gfcal::discrepancy::diagnose::{DiagnoseSettings, Diagnosis, Verdict, diagnose};
     use gfcal::discrepancy::effect::by_name;
+    use gfcal::discrepancy::log::{DiagnoseSettings, Diagnosis, Verdict, diagnose};
 
     fn effect(name: &str, values: Vec<f64>) -> ActiveEffect {
         ActiveEffect { effect: by_name(name).unwrap(), values }
@@ -386,7 +386,7 @@ mod diagnosis {
         }
         // The jump is not in the library: what is left stays above the noise at the test's level.
         assert!(d.unmodelled_effect_remains, "gap {} -> {} (p {})", d.gap_before, d.gap_after, d.p_value_after);
-        assert_eq!(d.explanation(), gfcal::discrepancy::diagnose::Explanation::Partial, "{:?}", named(&d));
+        assert_eq!(d.explanation(), gfcal::discrepancy::Explanation::Partial, "{:?}", named(&d));
     }
 
     /// Issue 11, item 6: a temperature column that never changes is said to be constant, not
@@ -398,20 +398,20 @@ mod diagnosis {
         assert!(log.has_temperature());
         log.steps.iter_mut().for_each(|s| s.temp_c.iter_mut().for_each(|t| *t = 21.5));
         let d = diagnose(&log, &cfg.array, &cfg.errors.nominal, &DiagnoseSettings::default()).unwrap();
-        let rows = gfcal::discrepancy::diagnose::regressor_correlations(&log, &cfg.array, &d.baseline, Form::Triad, G);
+        let rows = gfcal::discrepancy::log::regressor_correlations(&log, &cfg.array, &d.baseline, Form::Triad, G);
         for row in &rows {
             match &row.correlation {
-                gfcal::discrepancy::diagnose::Correlation::PerAccelerometer(r) => {
+                gfcal::discrepancy::log::Correlation::PerAccelerometer(r) => {
                     assert!(r.iter().all(|v| v.is_some_and(f64::is_finite)), "{}: {r:?}", row.regressor)
                 }
-                gfcal::discrepancy::diagnose::Correlation::Constant(v) => {
+                gfcal::discrepancy::log::Correlation::Constant(v) => {
                     assert_eq!(row.regressor, "temperature");
                     assert!((v - 21.5).abs() < 1e-12);
                 }
             }
         }
         assert!(rows.iter().any(|r| r.regressor == "temperature"
-            && matches!(r.correlation, gfcal::discrepancy::diagnose::Correlation::Constant(_))));
+            && matches!(r.correlation, gfcal::discrepancy::log::Correlation::Constant(_))));
         // Through the binary: the printout says it, and neither it nor the JSON carries a NaN.
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("constant.csv");
@@ -463,7 +463,7 @@ mod diagnosis {
 
 #[test]
 fn bias_instability_is_named_from_the_allan_variance() {
-    use gfcal::discrepancy::diagnose::{DiagnoseSettings, diagnose};
+    use gfcal::discrepancy::log::{DiagnoseSettings, diagnose};
     use gfcal::sensor::noise::GaussMarkov;
     let cfg = example();
     // 100 ug first-order Gauss-Markov with a 0.2 s correlation time over 20 ug/sqrt(Hz) white

@@ -3,8 +3,11 @@
 mod calibrate_cli;
 mod calibration;
 mod cli;
+mod clock;
+mod clock_recovery;
 mod common;
 mod discrepancy;
+mod lincov;
 mod mc;
 mod mechanization;
 mod misalignment;
@@ -18,3 +21,4 @@ mod reference;
 mod report;
 mod sample_rates;
 mod selfcal;
+mod simulate;

@@ -2,10 +2,11 @@
 //! the noise floor of rate integration.
 
 use gfcal::array::Array;
+use gfcal::nav::SimulatedArray;
 use gfcal::nav::drift::attitude_error_rad;
 use gfcal::nav::{DriftSample, DriftSetup, InitialState, Segment, Trajectory, drift_study, navigate};
 use gfcal::sensor::noise::{NoiseGenerator, NoiseSpec, WhiteNoise};
-use gfcal::sensor::{ArrayParams, Compensator, SimulatedArray};
+use gfcal::sensor::{ArrayParams, Compensator};
 use gfcal::units::{M_S2_PER_UG, STANDARD_GRAVITY_M_S2 as G};
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::SeedableRng;

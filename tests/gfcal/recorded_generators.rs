@@ -4,12 +4,13 @@
 //! the fitted state), is named on its owner alone and recovered within 3 sigma. The sizes were
 //! chosen before the first run: realistic for MEMS parts and a few sigmas or more.
 
+use gfcal::array::wiring::RecordingArray;
 use gfcal::discrepancy::recorded::RecordedDiagnosis;
-use gfcal::discrepancy::recorded_effect::Layout;
+use gfcal::discrepancy::recorded::effect::EffectLayout;
 use gfcal::rng::trial_rng;
 use gfcal::selfcal::calibrate::CalibrateSettings;
 use gfcal::selfcal::model::SensorSet;
-use gfcal::selfcal::recording::{Recording, RecordingArray};
+use gfcal::selfcal::recording::Recording;
 use gfcal::selfcal::simulate::{Simulated, project_to_gauge, simulate};
 use gfcal::sensor::misalignment::{tilt_axis, tilt_basis};
 use nalgebra::{Matrix3, Vector3};
@@ -170,7 +171,7 @@ fn a_warm_up_drift_hidden_by_the_simulator_is_named_on_its_accelerometer() {
 fn a_sampling_delay_of_one_package_made_at_1_khz_is_named_on_its_package() {
     let array = mimu_array();
     let t = truth(&array);
-    let layout = Layout::new(&array.array);
+    let layout = EffectLayout::new(&array.array);
     let m = 3;
     let factor = 16;
     let hide = |seed: u64| -> Recording {
@@ -229,7 +230,7 @@ fn a_gyro_scale_and_misalignment_hidden_by_the_simulator_is_named_in_use_gyro_mo
 fn a_sensing_point_per_axis_made_by_the_simulator_is_found_inside_its_package() {
     let array = mimu_array();
     let mut t = truth(&array);
-    let layout = Layout::new(&array.array);
+    let layout = EffectLayout::new(&array.array);
     let (m, zaxis) = (5, layout.packages[5][2]);
     t.location_error_m[zaxis].z += 8e-3;
     project_to_gauge(&array.array, &mut t);
@@ -294,7 +295,7 @@ fn a_cubic_scale_factor_hidden_by_the_simulator_is_named_on_its_accelerometer() 
 ///
 /// History: with the turn-on test's sigmas taken as the held-out refit's and the fitting recording's own
 /// sigma combined, 15 of 100 pairs named `bias_turn_on`. With the changes' whole covariance
-/// (`discrepancy::recorded_change`), 1 of 100 (seed 34, `bias_turn_on`), run on 2026-11-24.
+/// (`discrepancy::recorded::change`), 1 of 100 (seed 34, `bias_turn_on`), run on 2026-11-24.
 #[test]
 #[ignore = "about 8 minutes on two cores; run it after any change to the diagnosis of recordings"]
 fn clean_simulated_pairs_name_nothing_in_at_least_97_of_100_seeds() {

@@ -1,0 +1,86 @@
+"""The sample clocks' effect on the six diagnoses (issue 28, items 4 and 5): Python's standard library only.
+
+Before: no_clocks/diagnose[_gyro]_K.json, the diagnoses of run.sh made before the array file declared the packages'
+clocks (an array without clocks is diagnosed bit for bit as then). After: diagnose[_gyro]_K.json from run.sh and
+run_gyro.sh with configs/arrays/mimu4444_corners.toml as it is.
+
+    python3 results/mimu4444/discrepancy/clock_effect.py results/mimu4444/discrepancy > results/mimu4444/discrepancy/clock_effect.md
+"""
+import json
+import math
+import sys
+from pathlib import Path
+
+
+def rms(v):
+    v = [x for x in v if x is not None and math.isfinite(x)]
+    return math.sqrt(sum(x * x for x in v) / len(v)) if v else float("nan")
+
+
+def rank_sigma(d, name):
+    for r in d.get("rank_tests", []):
+        if r["name"] == name:
+            return rms(r["sigma"])
+    return float("nan")
+
+
+def clock_gap(entries):
+    for e in entries:
+        if e["effect"] == "sample_clock":
+            return e["dynamic_gap"]
+    return None
+
+
+def fmt(x, digits=1):
+    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{digits}f}"
+
+
+def main(folder):
+    folder = Path(folder)
+    print("# The sample clocks in the six diagnoses, both modes\n")
+    print("Each recording in turn is the fitting one, the other five held out. Dynamic gap: (residual RMS / static")
+    print("noise RMS)^2. `before`: the diagnosis without the clocks (no_clocks/); `after clocks`: the gap after")
+    print("`sample_clock` (fitting: scaled by the calibration's residual variance with/without the clocks; held out:")
+    print("by the share the fitting recording's relative rates remove there, phases from their own gyroscopes).")
+    print("Sigma columns: RMS over the effect's parameters of its rank test's sigma, before -> after.\n")
+    print("| recording | mode | sample_clock | fitting dynamic gap | held-out dynamic gap (mean) | quadratic SF sigma | cross-coupling sigma | explanation |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    ratios = {"scale_factor_quadratic": [], "cross_coupling": []}
+    for mode, stem in (("gyro-free", "diagnose_"), ("use-gyro", "diagnose_gyro_")):
+        for k in range(1, 7):
+            before_path = folder / "no_clocks" / f"{stem}{k}.json"
+            after_path = folder / f"{stem}{k}.json"
+            if not (before_path.exists() and after_path.exists()):
+                continue
+            b = json.loads(before_path.read_text())
+            a = json.loads(after_path.read_text())
+            tried = any(e["name"] == "sample_clock" for e in a.get("effects", []) + a.get("not_named", []))
+            if not tried:
+                print(f"| recording_{k} | {mode} | not re-run with the clocks | | | | | |")
+                continue
+            named = [e for e in a.get("effects", []) if e["name"] == "sample_clock"]
+            named_text = f"named, p = {named[0]['p_value_largest']:.2f}" if named else "not named"
+            fit_before = b["fitting"]["before"]["dynamic_gap"]
+            fit_after = clock_gap(a.get("fitting_after_each", []))
+            ho_before = [h["dynamic_gap_before"] for h in a["held_out"]]
+            ho_after = [clock_gap(h.get("after_each", [])) for h in a["held_out"]]
+            ho_after = [x for x in ho_after if x is not None]
+            mean = lambda v: sum(v) / len(v) if v else None
+            cells = []
+            for name in ("scale_factor_quadratic", "cross_coupling"):
+                sb, sa = rank_sigma(b, name), rank_sigma(a, name)
+                if math.isfinite(sb) and math.isfinite(sa) and sb > 0:
+                    ratios[name].append(sa / sb)
+                cells.append(f"{sb:.2e} -> {sa:.2e}")
+            print(
+                f"| recording_{k} | {mode} | {named_text} | {fmt(fit_before)} -> {fmt(fit_after)} | "
+                f"{fmt(mean(ho_before))} -> {fmt(mean(ho_after))} | {cells[0]} | {cells[1]} | {a.get('explanation')} |"
+            )
+    print()
+    for name, r in ratios.items():
+        if r:
+            print(f"- {name}: sigma after / before {min(r):.2f}-{max(r):.2f} over {len(r)} diagnoses (at least halved: <= 0.5).")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1] if len(sys.argv) > 1 else "results/mimu4444/discrepancy")

@@ -1,0 +1,64 @@
+//! The sensing point of each axis inside a package: the baseline gives every accelerometer its
+//! own location error, so the three axes of an IMU may sit at three points. Whether they do is
+//! a Wald test of the differences of their location errors within the package (`3 (k - 1)`
+//! values for `k` axes), with the robust covariance of the fitting recording (`projected`). The
+//! differences are free of the gauge: a common shift, a common rotation or a scaling about the
+//! centroid moves the axes of one package together (to first order).
+
+use nalgebra::{DMatrix, DVector};
+
+use super::effect::EffectLayout;
+use super::projected::Accumulated;
+use crate::selfcal::model::{PER_ACCEL, SensorSet};
+use crate::stats::{symmetric_pinv, wald_p};
+
+/// The test of one package.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensingPoint {
+    /// Package index (0-based) and its accelerometers (0-based).
+    pub package: usize,
+    pub accelerometers: Vec<usize>,
+    /// Location error of each axis minus the first axis's, m (3 per further axis), and sigmas.
+    pub difference_m: Vec<f64>,
+    pub sigma_m: Vec<f64>,
+    pub p_value: f64,
+}
+
+/// Tests every package with more than one axis. `total` is the fitting recording's accumulation
+/// with the baseline as its first `PER_ACCEL n` columns.
+pub fn sensing_points(total: &Accumulated, layout: &EffectLayout, params: &SensorSet) -> Vec<SensingPoint> {
+    let n = params.len();
+    let g: Vec<usize> = (0..PER_ACCEL * n).collect();
+    let ngg = DMatrix::from_fn(g.len(), g.len(), |i, j| total.normal[(g[i], g[j])]);
+    // The spread of the scores: the dynamic samples' sandwich and the static intervals' model
+    // information (`projected`; at the baseline's own solution, with its variance factor).
+    let mgg = DMatrix::from_fn(g.len(), g.len(), |i, j| total.meat[(g[i], g[j])] + total.model_normal[(g[i], g[j])]);
+    let (pg, _) = symmetric_pinv(&ngg, 1e-11);
+    let cov = &pg * mgg * &pg;
+    let mut out = Vec::new();
+    for (m, accs) in layout.packages.iter().enumerate() {
+        if accs.len() < 2 {
+            continue;
+        }
+        let rows = 3 * (accs.len() - 1);
+        let mut d = DMatrix::zeros(rows, g.len());
+        let mut value = DVector::zeros(rows);
+        for (i, &j) in accs.iter().skip(1).enumerate() {
+            for c in 0..3 {
+                d[(3 * i + c, PER_ACCEL * j + 4 + c)] = 1.0;
+                d[(3 * i + c, PER_ACCEL * accs[0] + 4 + c)] = -1.0;
+                value[3 * i + c] = params.location_error_m[j][c] - params.location_error_m[accs[0]][c];
+            }
+        }
+        let c = &d * &cov * d.transpose();
+        let v: Vec<f64> = value.iter().copied().collect();
+        out.push(SensingPoint {
+            package: m,
+            accelerometers: accs.clone(),
+            sigma_m: (0..rows).map(|i| c[(i, i)].max(0.0).sqrt()).collect(),
+            p_value: wald_p(&v, &c),
+            difference_m: v,
+        });
+    }
+    out
+}

@@ -1,0 +1,275 @@
+//! The library of `recorded_effect` tried on recordings, one effect after another, each on top of
+//! the effects already named.
+//!
+//! **On the fitting recording** an effect's parameters are fitted with the baseline's re-adjusted
+//! (`projected::fit_terms`), and each owner's (an accelerometer's, a package's, or the shared
+//! set's) parameters are tested against zero by a Wald test with the robust covariance at the
+//! level `alpha / (owners x effects tried)`. The owners that pass are kept, and the effect refitted
+//! on them alone.
+//!
+//! **On the held-out recordings**, what must differ between recordings is refitted there (poses,
+//! motion, and the turn-on bias and scale factor if they were named). The fitting recording's
+//! extended model is carried over whole: its re-adjusted baseline parameters (an effect's static
+//! part moves the scale factors and biases it is fitted with) and the effect itself if it is a
+//! property of the hardware, which must then lower the gap on every held-out recording. An effect
+//! that differs between recordings (`per_recording`) is refitted on each and must pass its test
+//! there too (level `alpha / held-out recordings`).
+//! Only then is it named. A named effect joins the model for the effects after it.
+//!
+//! The gaps after each addition are the linearised ones: the phase's gap times the ratio of its
+//! weighted residual sum of squares with the effect to without.
+
+use super::blocks::RecordingNormal;
+use super::diagnosis::{Gap, RankTest, RecordedFinding};
+use super::effect::{EffectLayout, Owner, RecordedEffect};
+use super::projected::{Accumulated, TermFit, fit_terms, nuisance_step, ss_with};
+use crate::stats::wald_p;
+
+/// A held-out recording as the trial sees it.
+#[derive(Debug, Clone)]
+pub struct HeldOutNormal {
+    pub normal: RecordingNormal,
+    /// Its gap before any effect of the library (after the turn-on effects).
+    pub gap: Gap,
+}
+
+/// What the library found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrialOutcome {
+    pub findings: Vec<RecordedFinding>,
+    pub not_named: Vec<(String, String)>,
+    pub ranks: Vec<RankTest>,
+    /// The fitting recording's gap after each named effect.
+    pub fitting_after_each: Vec<(String, Gap)>,
+    /// Per held-out recording, its gap after each named effect.
+    pub held_out_after_each: Vec<Vec<(String, Gap)>>,
+}
+
+fn sub(m: &nalgebra::DMatrix<f64>, idx: &[usize]) -> nalgebra::DMatrix<f64> {
+    nalgebra::DMatrix::from_fn(idx.len(), idx.len(), |i, j| m[(idx[i], idx[j])])
+}
+
+/// Both phases' weighted sums of squares with the nuisance re-adjusted and `terms` at `theta`.
+fn phase_ss(s: &Accumulated, d: &Accumulated, nuisance: &[usize], terms: &[usize], theta: &[f64]) -> (f64, f64) {
+    let mut t = s.clone();
+    t.merge(d);
+    (ss_with(s, &t, nuisance, terms, theta), ss_with(d, &t, nuisance, terms, theta))
+}
+
+fn scaled(gap: &Gap, base: (f64, f64), now: (f64, f64)) -> Gap {
+    let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 1.0 };
+    Gap {
+        static_chi2_dof: gap.static_chi2_dof * ratio(now.0, base.0),
+        dynamic: gap.dynamic.map(|g| g * ratio(now.1, base.1)),
+    }
+}
+
+/// Tries `effects` in turn (see the module docs).
+pub fn try_effects(
+    fitting: &RecordingNormal,
+    fitting_gap: Gap,
+    held_out: &[HeldOutNormal],
+    effects: &[RecordedEffect],
+    layout: &EffectLayout,
+    alpha: f64,
+) -> TrialOutcome {
+    let mut out = TrialOutcome {
+        findings: Vec::new(),
+        not_named: Vec::new(),
+        ranks: Vec::new(),
+        fitting_after_each: Vec::new(),
+        held_out_after_each: vec![Vec::new(); held_out.len()],
+    };
+    let total_a = fitting.total();
+    // The fitting recording's nuisance grows with each named effect (fitted jointly there).
+    let mut nuisance_a = fitting.nuisance();
+    // The columns of the named effects refitted per recording (not carried over).
+    let mut per_recording_cols: Vec<usize> = Vec::new();
+    let base_a = phase_ss(&fitting.statics, &fitting.dynamics, &nuisance_a, &[], &[]);
+    // Each held-out recording's accumulations, shifted by the named effects' values.
+    let mut current: Vec<(Accumulated, Accumulated)> =
+        held_out.iter().map(|h| (h.normal.statics.clone(), h.normal.dynamics.clone())).collect();
+    let base_b: Vec<(f64, f64)> = held_out
+        .iter()
+        .map(|h| phase_ss(&h.normal.statics, &h.normal.dynamics, &h.normal.nuisance(), &[], &[]))
+        .collect();
+    let tried = effects.len().max(1) as f64;
+    for (e_index, effect) in effects.iter().enumerate() {
+        let name = effect.name().to_string();
+        let p = effect.parameters(layout);
+        let cols = fitting.effect_columns(e_index, p);
+        let mut tf = fit_terms(&total_a, &nuisance_a, &cols);
+        if tf.unseen == 1 && effect.per_owner() == 1 {
+            // One direction unseen (a delay common to every package): the values are seen only
+            // relative to each other; test each against the median owner (the sparse reading:
+            // one package delayed leaves the others at the median).
+            relative_to_median(&mut tf);
+        }
+        out.ranks.push(RankTest {
+            name: name.clone(),
+            parameters: p,
+            unseen: tf.unseen,
+            value: tf.value.clone(),
+            sigma: tf.sigma_robust.clone(),
+            covariance: tf.covariance_robust.clone(),
+            p_value_joint: wald_p(&tf.value, &tf.covariance_robust),
+        });
+        if tf.unseen == p {
+            out.not_named.push((
+                name,
+                format!("every one of its {p} directions is absorbed by the model (rank test): no recording of this kind can see it"),
+            ));
+            continue;
+        }
+        if effect.per_recording() && held_out.is_empty() {
+            out.not_named.push((name, "differs between recordings: needs held-out recordings (--held-out)".into()));
+            continue;
+        }
+        // Owners and their tests on the fitting recording.
+        let per = effect.per_owner();
+        let owners = p / per;
+        let level = alpha / (owners as f64 * tried);
+        let mut selected = Vec::new();
+        let mut smallest = 1.0f64;
+        for o in 0..owners {
+            let idx: Vec<usize> = (o * per..(o + 1) * per).collect();
+            let v: Vec<f64> = idx.iter().map(|&i| tf.value[i]).collect();
+            let pv = wald_p(&v, &sub(&tf.covariance_robust, &idx));
+            smallest = smallest.min(pv);
+            if pv < level {
+                selected.extend(idx);
+            }
+        }
+        if selected.is_empty() {
+            out.not_named.push((
+                name,
+                format!(
+                    "no {} passes its test on the fitting recording (smallest p = {smallest:.2e}, level {level:.1e})",
+                    owner_word(effect)
+                ),
+            ));
+            continue;
+        }
+        let sel_a: Vec<usize> = selected.iter().map(|&i| cols[i]).collect();
+        let tf_sel = fit_terms(&total_a, &nuisance_a, &sel_a);
+        // (The owners kept are fitted alone: with a common direction unseen, the others are held
+        // at zero, which fixes it.)
+        // Held-out recordings (accumulated in the fitting recording's column layout). What the
+        // fitting recording's extended model changes is carried over: every baseline parameter and
+        // every carried-over effect named before, re-adjusted with this one, and this one too unless
+        // it is refitted per recording. Only then is the held-out recording's own part refitted.
+        // (The change the term causes: the re-adjustment without it is left out, as the held-out
+        // recordings' baseline gaps leave it out.)
+        let caused = &tf_sel.nuisance_change - nuisance_step(&total_a, &nuisance_a);
+        let mut carried_cols = Vec::new();
+        let mut carried_vals = Vec::new();
+        for (c, v) in nuisance_a.iter().zip(caused.iter()) {
+            if !per_recording_cols.contains(c) {
+                carried_cols.push(*c);
+                carried_vals.push(*v);
+            }
+        }
+        if !effect.per_recording() {
+            carried_cols.extend_from_slice(&sel_a);
+            carried_vals.extend_from_slice(&tf_sel.value);
+        }
+        let mut verdicts = Vec::with_capacity(held_out.len());
+        for (h, (s, d)) in held_out.iter().zip(&current) {
+            let nb = h.normal.nuisance();
+            let before = phase_ss(s, d, &nb, &[], &[]);
+            let (s1, d1) = (s.shifted(&carried_cols, &carried_vals), d.shifted(&carried_cols, &carried_vals));
+            let (theta, test_p) = if effect.per_recording() {
+                let mut t = s1.clone();
+                t.merge(&d1);
+                let fb: TermFit = fit_terms(&t, &nb, &sel_a);
+                let pv = wald_p(&fb.value, &fb.covariance_robust);
+                (fb.value, pv)
+            } else {
+                (Vec::new(), 0.0)
+            };
+            let own: &[usize] = if effect.per_recording() { &sel_a } else { &[] };
+            let after = phase_ss(&s1, &d1, &nb, own, &theta);
+            let next = (s1.shifted(own, &theta), d1.shifted(own, &theta));
+            verdicts.push((before, after, next, test_p));
+        }
+        let lowers = verdicts.iter().all(|(b, a, ..)| a.0 + a.1 < b.0 + b.1);
+        let held_level = alpha / held_out.len().max(1) as f64;
+        let holds = verdicts.iter().all(|v| v.3 < held_level);
+        if !(lowers && holds) {
+            let why = if !lowers {
+                "does not lower the gap on every held-out recording".to_string()
+            } else {
+                let largest = verdicts.iter().map(|v| v.3).fold(0.0f64, f64::max);
+                format!(
+                    "refitted on the held-out recordings, fails its test on at least one (largest p = {largest:.2e}, level {held_level:.1e})"
+                )
+            };
+            out.not_named.push((
+                name,
+                format!("{why} ({} of its {} owners pass on the fitting recording)", selected.len() / per, owners),
+            ));
+            continue;
+        }
+        // Named: one finding per owner kept.
+        for chunk in selected.chunks(per) {
+            let pos: Vec<usize> = chunk.iter().map(|i| selected.iter().position(|s| s == i).unwrap_or(0)).collect();
+            let (accelerometer, package) = match effect.owner(chunk[0]) {
+                Owner::Accelerometer(j) => (Some(j), None),
+                Owner::Package(m) => (None, Some(m)),
+                Owner::Shared => (None, None),
+            };
+            out.findings.push(RecordedFinding {
+                name: name.clone(),
+                what: if effect.per_recording() {
+                    "fitted on the fitting recording (refitted on each held-out recording)".into()
+                } else {
+                    "fitted on the fitting recording, carried over to the held-out recordings".into()
+                },
+                accelerometer,
+                package,
+                value: pos.iter().map(|&i| tf_sel.value[i]).collect(),
+                sigma: pos.iter().map(|&i| tf_sel.sigma_robust[i]).collect(),
+                unit: effect.unit().into(),
+                p_value_largest: verdicts.iter().map(|v| v.3).fold(0.0f64, f64::max),
+            });
+        }
+        nuisance_a.extend_from_slice(&sel_a);
+        if effect.per_recording() {
+            per_recording_cols.extend_from_slice(&sel_a);
+        }
+        let now_a = phase_ss(&fitting.statics, &fitting.dynamics, &nuisance_a, &[], &[]);
+        out.fitting_after_each.push((name.clone(), scaled(&fitting_gap, base_a, now_a)));
+        for (k, (_, _, next, _)) in verdicts.into_iter().enumerate() {
+            current[k] = next;
+            let (s, d) = &current[k];
+            let now = phase_ss(s, d, &held_out[k].normal.nuisance(), &[], &[]);
+            out.held_out_after_each[k].push((name.clone(), scaled(&held_out[k].gap, base_b[k], now)));
+        }
+    }
+    out
+}
+
+/// Re-expresses one-parameter-per-owner values relative to the owner at their median, with
+/// the covariance carried over (`v - v_med`).
+fn relative_to_median(tf: &mut TermFit) {
+    let e = tf.value.len();
+    let mut order: Vec<usize> = (0..e).collect();
+    order.sort_by(|a, b| tf.value[*a].total_cmp(&tf.value[*b]));
+    let med = order[e / 2];
+    let mut d = nalgebra::DMatrix::<f64>::identity(e, e);
+    for i in 0..e {
+        d[(i, med)] -= 1.0;
+    }
+    let v = &d * nalgebra::DVector::from_column_slice(&tf.value);
+    tf.covariance_robust = &d * &tf.covariance_robust * d.transpose();
+    tf.value = v.iter().copied().collect();
+    tf.sigma_robust = (0..e).map(|i| tf.covariance_robust[(i, i)].max(0.0).sqrt()).collect();
+}
+
+fn owner_word(e: &RecordedEffect) -> &'static str {
+    match e.owner(0) {
+        Owner::Accelerometer(_) => "accelerometer",
+        Owner::Package(_) => "package",
+        Owner::Shared => "shared parameter set",
+    }
+}

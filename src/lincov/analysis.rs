@@ -1,0 +1,629 @@
+//! The analysis of one cell: every compensation, horizon and drift metric, with its
+//! distribution, its error budget and its nonlinearity index.
+
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, UnitQuaternion, Vector3, Vector4};
+use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
+
+use super::dynamics::{Linearisation, LinearisationError, linearise};
+use super::nonlinearity::{Probe, SIGMA_POINT, index, navigate_probes, principal_direction};
+use super::norm::{GaussNorm, ScaleMixture};
+use super::sources::{Calibration, calibration_with, nominal_errors, nominal_parameters, reference, truths};
+use crate::calib::params::PER_ACCEL;
+use crate::config::calibration::Estimator;
+use crate::mc::Cell;
+use crate::mc::config::Compensation;
+use crate::nav::MotionGrid;
+use crate::rng::trial_rng;
+
+/// The nonlinearity index at or below which a row is `linear` (LinCov stands by its number).
+/// Calibrated on the comparisons with the Monte Carlo in docs/lincov.md.
+pub const LINEAR_THRESHOLD: f64 = 0.1;
+
+/// Salt of the streams of the mixture's random rotations.
+const ROTATION_SALT: u64 = 0x6c69_6e63_6f76_726f;
+
+/// How to analyse.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Settings {
+    /// Truths drawn for a mixture (when some error parameter varies).
+    pub truths: usize,
+    /// Whether to run the navigator at sigma points for the nonlinearity index.
+    pub nonlinearity: bool,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Self { truths: 1024, nonlinearity: true }
+    }
+}
+
+/// Where a share of a metric's mean square comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Source {
+    /// A parameter of the layout (index): its own error, and half of its covariance with every
+    /// other parameter.
+    Parameter(usize),
+    /// What the fixture's pose errors add to the calibration's covariance.
+    Fixture,
+    /// The navigation's white noise.
+    Noise,
+}
+
+/// One compensation, horizon and metric.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MetricResult {
+    pub compensation: Compensation,
+    /// Index into `mc::trial::DRIFT_METRICS`.
+    pub metric: usize,
+    pub horizon_s: f64,
+    pub median: f64,
+    pub p95: f64,
+    pub p05: f64,
+    /// `sqrt(E |e|^2)`.
+    pub rms: f64,
+    /// Standard errors of `median` and `p95` from the mixture's finite draws (0 for one Gaussian).
+    pub median_se: f64,
+    pub p95_se: f64,
+    /// Gaussians in the distribution (1: one Gaussian; more: a mixture over drawn truths).
+    pub components: usize,
+    /// Parameters the schedule cannot identify whose error reaches this metric (its quantiles are
+    /// then infinite).
+    pub unbounded_by: Vec<String>,
+    /// Shares of `E |e|^2` by source (they add up to it).
+    pub budget: Vec<(Source, f64)>,
+    pub nonlinearity: f64,
+    pub linear: bool,
+}
+
+/// The analysis of one cell.
+#[derive(Debug, Clone)]
+pub struct CellResult {
+    pub cell: usize,
+    pub rows: Vec<MetricResult>,
+    /// Truths of the estimated compensation's mixture left out: their Cramer-Rao bound reaches
+    /// beyond the model's small-error region, where the Monte Carlo's fits are refused.
+    pub excluded_truths: usize,
+}
+
+/// Why a cell cannot be analysed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum LincovError {
+    /// The config asks for something LinCov does not model (bad input for `gfcal lincov`).
+    #[error("key `{key}`: {problem}")]
+    Unsupported { key: String, problem: String },
+    #[error(transparent)]
+    Linearisation(#[from] LinearisationError),
+}
+
+/// Refuses what LinCov does not model, naming the key.
+pub fn check(cell: &Cell) -> Result<(), LincovError> {
+    let unsupported =
+        |key: &str, problem: &str| Err(LincovError::Unsupported { key: key.into(), problem: problem.into() });
+    if cell.protocol.is_some() {
+        return unsupported(
+            "protocol",
+            "LinCov needs a rate-table schedule: a hand-held protocol's calibration has no Fisher information here",
+        );
+    }
+    if cell.calibration.estimator == Estimator::Paper
+        && cell.navigation.compensations.contains(&Compensation::Estimated)
+    {
+        return unsupported(
+            "calibration.estimator",
+            "LinCov's estimated compensation uses the Cramer-Rao covariance, which the joint estimator reaches; \
+             the paper's procedure does not (use estimator = \"joint\", or leave \"estimated\" out)",
+        );
+    }
+    let noise = &cell.noise;
+    if cell.navigation.noise {
+        if noise.gauss_markov.is_some_and(|g| g.sigma_m_s2 > 0.0) {
+            return unsupported("noise.gauss_markov_sigma_ug", "LinCov propagates white noise only");
+        }
+        if noise.random_walk_m_s2_per_sqrt_s > 0.0 {
+            return unsupported("noise.random_walk_ug_per_sqrt_s", "LinCov propagates white noise only");
+        }
+        if noise.quantization_m_s2 > 0.0 {
+            return unsupported("noise.quantization_ug", "LinCov propagates white noise only");
+        }
+    }
+    Ok(())
+}
+
+/// The linearisation of a cell's navigation (shared by cells that navigate alike).
+pub fn linearisation(cell: &Cell) -> Result<Linearisation, LincovError> {
+    linearisation_at(cell, &reference(cell))
+}
+
+/// The linearisation of a cell's navigation about the truth `x` (layout form).
+pub fn linearisation_at(cell: &Cell, x: &DVector<f64>) -> Result<Linearisation, LincovError> {
+    let nav = &cell.navigation;
+    let noise = nav.noise && cell.noise.white.density_m_s2_per_sqrt_hz() > 0.0;
+    Ok(linearise(&cell.layout, x, &nav.trajectory, cell.calibration.gravity_m_s2, nav.step_s, &nav.horizons_s, noise)?)
+}
+
+/// A metric block at one horizon: `S_b` (3 x P) and the unit-density noise covariance.
+struct Block {
+    s: DMatrix<f64>,
+    noise_unit: Matrix3<f64>,
+}
+
+/// What one Gaussian (one truth) gives a block: its covariance, and the budget's parts.
+struct Part {
+    cov: Matrix3<f64>,
+    mean: Vector3<f64>,
+    /// Per parameter.
+    shares: Vec<f64>,
+    fixture: f64,
+    noise: f64,
+    /// The unidentifiable parameters (at this component's truth) whose error reaches the block:
+    /// the component is then unbounded.
+    unbounded_by: Vec<String>,
+}
+
+/// A parameter covariance and how to multiply by it.
+struct ParamCov<'a> {
+    cov: &'a DMatrix<f64>,
+    block_diagonal: bool,
+}
+
+impl ParamCov<'_> {
+    /// `S C` for a 3 x P `s`.
+    fn left(&self, s: &DMatrix<f64>) -> DMatrix<f64> {
+        if !self.block_diagonal {
+            return s * self.cov;
+        }
+        let p = s.ncols();
+        let mut out = DMatrix::zeros(3, p);
+        for o in (0..p).step_by(PER_ACCEL) {
+            for c in o..o + PER_ACCEL {
+                for k in o..o + PER_ACCEL {
+                    let ck = self.cov[(k, c)];
+                    if ck != 0.0 {
+                        for r in 0..3 {
+                            out[(r, c)] += s[(r, k)] * ck;
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+/// `S C S^T` and the shares `diag(S^T S C)` (see [`Source::Parameter`]). A block-diagonal `C`
+/// goes 7 x 7 block by block on the matrices' storage (column-major), without allocating but
+/// the shares.
+fn propagate(s: &DMatrix<f64>, c: &ParamCov<'_>) -> (Matrix3<f64>, Vec<f64>) {
+    if !c.block_diagonal {
+        let sc = c.left(s);
+        let cov = Matrix3::from_fn(|r, q| (0..s.ncols()).map(|i| sc[(r, i)] * s[(q, i)]).sum());
+        let shares = (0..s.ncols()).map(|i| (0..3).map(|r| s[(r, i)] * sc[(r, i)]).sum()).collect();
+        return (cov, shares);
+    }
+    let p = s.ncols();
+    let (sd, cd) = (s.as_slice(), c.cov.as_slice());
+    let mut shares = vec![0.0; p];
+    let mut cov = [[0.0; 3]; 3];
+    for o in (0..p).step_by(PER_ACCEL) {
+        // sc = S_j C_j, 3 x 7, column by column.
+        let mut sc = [[0.0; 3]; PER_ACCEL];
+        for (col, sc_col) in sc.iter_mut().enumerate() {
+            let c_col = &cd[(o + col) * p + o..(o + col) * p + o + PER_ACCEL];
+            for (k, ck) in c_col.iter().enumerate() {
+                let s_col = &sd[3 * (o + k)..3 * (o + k) + 3];
+                for r in 0..3 {
+                    sc_col[r] += s_col[r] * ck;
+                }
+            }
+        }
+        for (col, sc_col) in sc.iter().enumerate() {
+            let s_col = &sd[3 * (o + col)..3 * (o + col) + 3];
+            shares[o + col] = s_col[0] * sc_col[0] + s_col[1] * sc_col[1] + s_col[2] * sc_col[2];
+            for r in 0..3 {
+                for q in 0..3 {
+                    cov[r][q] += sc_col[r] * s_col[q];
+                }
+            }
+        }
+    }
+    (Matrix3::from_fn(|r, q| cov[r][q]), shares)
+}
+
+/// The parameters of the null directions `null` (as [`Calibration::null`]) that move the metric
+/// block `s` (3 x P): a direction reaches it when `|s dir|` exceeds 1e-9 of the block's largest
+/// response to one target of any parameter (`dir` has unit length in targets).
+fn reached_by(
+    s: &DMatrix<f64>,
+    null: &[(DVector<f64>, Vec<usize>)],
+    target: &DVector<f64>,
+    layout: &crate::calib::Layout,
+) -> Vec<String> {
+    let mut names: Vec<String> = Vec::new();
+    if null.is_empty() {
+        return names;
+    }
+    let scale =
+        (0..s.ncols()).map(|i| (0..3).map(|r| (s[(r, i)] * target[i]).powi(2)).sum::<f64>().sqrt()).fold(0.0, f64::max);
+    for (dir, who) in null {
+        if (s * dir).norm() > 1e-9 * scale {
+            for &i in who {
+                let name = layout.name(i);
+                if !names.contains(&name) {
+                    names.push(name);
+                }
+            }
+        }
+    }
+    names
+}
+
+/// The largest eigenvalue of a symmetric 3 x 3 matrix (0 for a zero matrix).
+fn largest_eigenvalue(m: &Matrix3<f64>) -> f64 {
+    let e = nalgebra::SymmetricEigen::new((m + m.transpose()) * 0.5);
+    e.eigenvalues.max().max(0.0)
+}
+
+/// A uniformly random rotation from a stream.
+fn random_rotation(seed: u64, m: usize) -> Rotation3<f64> {
+    let mut rng = trial_rng(seed ^ ROTATION_SALT, m as u64);
+    let v = Vector4::from_fn(|_, _| StandardNormal.sample(&mut rng));
+    UnitQuaternion::from_quaternion(nalgebra::Quaternion::from_vector(v)).to_rotation_matrix()
+}
+
+/// Analyses one cell (see the module docs of [`super`]). `lin` is the cell's linearisation.
+pub fn analyse_cell(
+    cell: &Cell,
+    lin: &Linearisation,
+    seed: u64,
+    settings: &Settings,
+    grid: Option<&Arc<MotionGrid>>,
+) -> Result<CellResult, LincovError> {
+    check(cell)?;
+    let layout = &cell.layout;
+    let p = layout.len();
+    let nav = &cell.navigation;
+    let horizons = lin.horizons_s.len();
+    let density = cell.noise.white.density_m_s2_per_sqrt_hz();
+    let noise_var = if nav.noise { density * density } else { 0.0 };
+    let blocks: Vec<Vec<Block>> = (0..horizons)
+        .map(|h| (0..4).map(|m| Block { s: lin.block(h, m), noise_unit: lin.noise_block(h, m) }).collect())
+        .collect();
+    let x_ref = reference(cell);
+    let g = cell.calibration.gravity_m_s2;
+    let mut rows = Vec::new();
+    let mut excluded = 0;
+    for &comp in &nav.compensations {
+        // Per component (truth): the parts of every (horizon, metric) block, and the sigma-point
+        // probes for the nonlinearity index.
+        let mut probes: Vec<Probe> = Vec::new();
+        // Per probe: the metric it was aimed at, the horizon it serves (all where `None`), dx.
+        let mut probe_blocks: Vec<(usize, Option<usize>, DVector<f64>)> = Vec::new();
+        let mut unbounded: Vec<Vec<Vec<String>>> = vec![vec![vec![]; 4]; horizons];
+        // The component (truth) the sigma-point probes belong to.
+        let mut probe_component = 0;
+        // For a mixture: per horizon and metric, how far the probed truth's own linearisation
+        // moves the metric's RMS from the reference's (the sensitivity's change across truths).
+        let mut truth_index: Option<Vec<[f64; 4]>> = None;
+        let (parts, components): (Vec<Vec<Vec<Part>>>, usize) = match comp {
+            Compensation::Nominal => {
+                let (mean, variance) = nominal_errors(cell);
+                let cov = DMatrix::from_diagonal(&variance);
+                let pc = ParamCov { cov: &cov, block_diagonal: true };
+                let parts = blocks
+                    .iter()
+                    .map(|hb| {
+                        hb.iter()
+                            .map(|b| {
+                                let (c, mut shares) = propagate(&b.s, &pc);
+                                let mu = &b.s * &mean;
+                                let mu = Vector3::new(mu[0], mu[1], mu[2]);
+                                for (i, sh) in shares.iter_mut().enumerate() {
+                                    let own = Vector3::new(b.s[(0, i)], b.s[(1, i)], b.s[(2, i)]) * mean[i];
+                                    *sh += own.dot(&mu);
+                                }
+                                let noise = noise_var * b.noise_unit;
+                                Part {
+                                    cov: c + noise,
+                                    mean: mu,
+                                    shares,
+                                    fixture: 0.0,
+                                    noise: noise.trace(),
+                                    unbounded_by: vec![],
+                                }
+                            })
+                            .collect()
+                    })
+                    .collect();
+                if settings.nonlinearity {
+                    let x_nom = nominal_parameters(cell);
+                    probes.push(Probe { truth: &x_nom - &mean, compensation: x_nom.clone() });
+                    probe_blocks.push((usize::MAX, None, mean.clone()));
+                    // The nominal errors are large: each horizon's own principal directions (the
+                    // last horizon's need not move an earlier one's metric the most).
+                    for (h, hb) in blocks.iter().enumerate() {
+                        for (m, b) in hb.iter().enumerate() {
+                            if let Some(u) = principal_direction(&b.s, &cov) {
+                                for sign in [1.0, -1.0] {
+                                    let dx = &mean + &u * (sign * SIGMA_POINT);
+                                    probes.push(Probe { truth: &x_nom - &dx, compensation: x_nom.clone() });
+                                    probe_blocks.push((m, Some(h), dx));
+                                }
+                            }
+                        }
+                    }
+                }
+                (vec![parts], 1)
+            }
+            Compensation::True => {
+                let parts = blocks
+                    .iter()
+                    .map(|hb| {
+                        hb.iter()
+                            .map(|b| {
+                                let noise = noise_var * b.noise_unit;
+                                Part {
+                                    cov: noise,
+                                    mean: Vector3::zeros(),
+                                    shares: vec![0.0; p],
+                                    fixture: 0.0,
+                                    noise: noise.trace(),
+                                    unbounded_by: vec![],
+                                }
+                            })
+                            .collect()
+                    })
+                    .collect();
+                if settings.nonlinearity || noise_var == 0.0 {
+                    probes.push(Probe { truth: x_ref.clone(), compensation: x_ref.clone() });
+                    probe_blocks.push((usize::MAX, None, DVector::zeros(p)));
+                }
+                (vec![parts], 1)
+            }
+            Compensation::Estimated => {
+                let xs = truths(cell, seed, settings.truths.max(1));
+                // One truth (fixed errors): its null directions by eigenvalues, as `gfcal identify`
+                // finds them. A mixture: each truth by Cholesky, its null directions only where that
+                // fails (a truth where the schedule loses a parameter).
+                let single = xs.len() == 1;
+                let target = crate::calib::fisher::Targets::default().si(layout, &x_ref);
+                let perfect = cell.calibration.pose.is_perfect();
+                let limits = small_error_limits(cell);
+                let per_truth: Vec<Option<(Vec<Vec<Part>>, Calibration)>> = xs
+                    .par_iter()
+                    .map(|x| {
+                        let cal = calibration_with(cell, x, density, single);
+                        if leaves_small_error_region(&cal.covariance, &limits) {
+                            return None;
+                        }
+                        let pc = ParamCov { cov: &cal.covariance, block_diagonal: perfect };
+                        let parts = blocks
+                            .iter()
+                            .map(|hb| {
+                                hb.iter()
+                                    .map(|b| {
+                                        let (c, mut shares) = propagate(&b.s, &pc);
+                                        // The fixture's part of each parameter's share is its own source.
+                                        let mut fixture = 0.0;
+                                        if !perfect {
+                                            let fx = ParamCov { cov: &cal.fixture, block_diagonal: false };
+                                            let (_, fix_shares) = propagate(&b.s, &fx);
+                                            for (s, f) in shares.iter_mut().zip(&fix_shares) {
+                                                *s -= f;
+                                                fixture += f;
+                                            }
+                                        }
+                                        let noise = noise_var * b.noise_unit;
+                                        Part {
+                                            cov: c + noise,
+                                            mean: Vector3::zeros(),
+                                            shares,
+                                            fixture,
+                                            noise: noise.trace(),
+                                            unbounded_by: reached_by(&b.s, &cal.null, &target, layout),
+                                        }
+                                    })
+                                    .collect()
+                            })
+                            .collect();
+                        Some((parts, cal))
+                    })
+                    .collect();
+                excluded = per_truth.iter().filter(|p| p.is_none()).count();
+                let kept: Vec<usize> = (0..xs.len()).filter(|&k| per_truth[k].is_some()).collect();
+                let xs: Vec<DVector<f64>> = kept.iter().map(|&k| xs[k].clone()).collect();
+                let per_truth: Vec<(Vec<Vec<Part>>, Calibration)> = per_truth.into_iter().flatten().collect();
+                if per_truth.is_empty() {
+                    return Err(LincovError::Unsupported {
+                        key: "errors".into(),
+                        problem: format!(
+                            "at every one of the {} truths drawn the schedule's Cramer-Rao bound reaches beyond the \
+                             model's small-error region: the calibration is not linear anywhere",
+                            excluded
+                        ),
+                    });
+                }
+                for (parts, _) in &per_truth {
+                    for (h, hp) in parts.iter().enumerate() {
+                        for (m, part) in hp.iter().enumerate() {
+                            for name in &part.unbounded_by {
+                                if !unbounded[h][m].contains(name) {
+                                    unbounded[h][m].push(name.clone());
+                                }
+                            }
+                        }
+                    }
+                }
+                if settings.nonlinearity {
+                    // Sigma points of the component at the 95th percentile of the last horizon's
+                    // position variance (the tail), navigated with its own truth.
+                    let mut order: Vec<usize> = (0..per_truth.len()).collect();
+                    let size = |k: usize| per_truth[k].0[horizons - 1][3].cov.trace();
+                    order.sort_by(|&a, &b| size(a).total_cmp(&size(b)));
+                    let k = order[((order.len() as f64 - 1.0) * 0.95).round() as usize];
+                    probe_component = k;
+                    let (x_t, cov) = (&xs[k], &per_truth[k].1.covariance);
+                    if !single {
+                        truth_index = Some(match linearisation_at(cell, x_t) {
+                            Ok(at) => (0..horizons)
+                                .map(|h| {
+                                    std::array::from_fn(|m| {
+                                        let s = at.block(h, m);
+                                        let moved = (&s * cov * s.transpose()).trace()
+                                            + noise_var * at.noise_block(h, m).trace();
+                                        let here = per_truth[k].0[h][m].cov.trace();
+                                        if here > 0.0 {
+                                            ((moved / here).sqrt() - 1.0).abs()
+                                        } else if moved > 0.0 {
+                                            f64::INFINITY
+                                        } else {
+                                            0.0
+                                        }
+                                    })
+                                })
+                                .collect(),
+                            Err(_) => vec![[f64::INFINITY; 4]; horizons],
+                        });
+                    }
+                    for (m, b) in blocks[horizons - 1].iter().enumerate() {
+                        if let Some(u) = principal_direction(&b.s, cov) {
+                            for sign in [1.0, -1.0] {
+                                let dx = &u * (sign * SIGMA_POINT);
+                                probes.push(Probe { truth: x_t.clone(), compensation: x_t + &dx });
+                                probe_blocks.push((m, None, dx));
+                            }
+                        }
+                    }
+                }
+                let components = per_truth.len();
+                (per_truth.into_iter().map(|(parts, _)| parts).collect(), components)
+            }
+        };
+        // One random rotation per component (the directions its Gaussian is read along).
+        let rotations: Vec<Rotation3<f64>> =
+            if components > 1 { (0..components).map(|k| random_rotation(seed, k)).collect() } else { vec![] };
+        // The navigator at the probes (one pass for all of them).
+        let navigated = match (grid, probes.is_empty()) {
+            (Some(grid), false) => navigate_probes(layout, grid, g, &probes),
+            _ => vec![],
+        };
+        for h in 0..horizons {
+            for m in 0..4 {
+                let first = &parts[0][h][m];
+                let mean_square: f64;
+                let (median, p95, p05);
+                let (mut median_se, mut p95_se) = (0.0, 0.0);
+                // Components where an unidentifiable parameter reaches the metric are infinite: a
+                // quantile at or above the bounded components' weight is then infinite too.
+                let bounded: Vec<usize> = (0..components).filter(|&k| parts[k][h][m].unbounded_by.is_empty()).collect();
+                let weight = bounded.len() as f64 / components as f64;
+                let within = |p: f64| if p < weight { Some(p / weight) } else { None };
+                if bounded.is_empty() {
+                    (median, p95, p05) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
+                    mean_square = f64::INFINITY;
+                } else if components == 1 {
+                    let dist = GaussNorm::new(&first.mean, &first.cov);
+                    if dist.is_deterministic() && first.mean == Vector3::zeros() && !navigated.is_empty() {
+                        // No parameter error and no noise: the navigator's own integration error.
+                        let e = navigated[0][h][m];
+                        (median, p95, p05) = (e, e, e);
+                    } else {
+                        (median, p95, p05) = (dist.quantile(0.5), dist.quantile(0.95), dist.quantile(0.05));
+                    }
+                    mean_square = dist.mean_square();
+                } else {
+                    let mut mix = ScaleMixture::default();
+                    for &k in &bounded {
+                        mix.add_gaussian(&parts[k][h][m].cov, &rotations[k], 1.0);
+                    }
+                    let q = |p: f64| within(p).map_or((f64::INFINITY, 0.0), |p| mix.quantile_with_error(p));
+                    ((median, median_se), (p95, p95_se)) = (q(0.5), q(0.95));
+                    p05 = within(0.05).map_or(f64::INFINITY, |p| mix.quantile(p));
+                    mean_square = if bounded.len() < components {
+                        f64::INFINITY
+                    } else {
+                        parts.iter().map(|c| c[h][m].cov.trace()).sum::<f64>() / components as f64
+                    };
+                }
+                // Budget: the average over components of each part.
+                let n = components as f64;
+                let mut sums = vec![0.0; p];
+                for c in &parts {
+                    for (sum, share) in sums.iter_mut().zip(&c[h][m].shares) {
+                        *sum += share;
+                    }
+                }
+                let mut budget: Vec<(Source, f64)> =
+                    sums.iter().enumerate().map(|(i, v)| (Source::Parameter(i), v / n)).collect();
+                budget.push((Source::Fixture, parts.iter().map(|c| c[h][m].fixture).sum::<f64>() / n));
+                budget.push((Source::Noise, parts.iter().map(|c| c[h][m].noise).sum::<f64>() / n));
+                // Nonlinearity: the probes of this metric (and the centre's, for a mean), against
+                // the probed component's spread at this horizon.
+                let probe_scale = SIGMA_POINT * largest_eigenvalue(&parts[probe_component][h][m].cov).sqrt();
+                let mut nl = 0.0_f64;
+                let mut have = false;
+                for (k, (pm, ph, dx)) in probe_blocks.iter().enumerate() {
+                    if navigated.is_empty() || (*pm != m && *pm != usize::MAX) || ph.is_some_and(|ph| ph != h) {
+                        continue;
+                    }
+                    let lin_norm = (&blocks[h][m].s * dx).norm();
+                    if *pm == usize::MAX && lin_norm == 0.0 {
+                        continue;
+                    }
+                    have = true;
+                    nl = nl.max(index(navigated[k][h][m], lin_norm, probe_scale));
+                }
+                if let Some(t) = &truth_index {
+                    nl = nl.max(t[h][m]);
+                    have = true;
+                }
+                let nonlinearity = if have {
+                    nl
+                } else if settings.nonlinearity {
+                    0.0
+                } else {
+                    f64::NAN
+                };
+                rows.push(MetricResult {
+                    compensation: comp,
+                    metric: m,
+                    horizon_s: lin.horizons_s[h],
+                    median,
+                    p95,
+                    p05,
+                    rms: mean_square.sqrt(),
+                    median_se,
+                    p95_se,
+                    components,
+                    unbounded_by: unbounded[h][m].clone(),
+                    budget,
+                    nonlinearity,
+                    linear: mean_square.is_finite() && nonlinearity <= LINEAR_THRESHOLD,
+                });
+            }
+        }
+    }
+    Ok(CellResult { cell: cell.index, rows, excluded_truths: excluded })
+}
+
+/// The Cramer-Rao sigma beyond which a fit is taken to leave the model's small-error region
+/// (`calib::estimate::outside_small_error_region`, which the Monte Carlo's fits are refused by):
+/// half the region, so that the fit's 2-sigma interval reaches its edge. Per parameter, SI
+/// (infinite for scale factors and biases, which have no region).
+fn small_error_limits(cell: &Cell) -> Vec<f64> {
+    let extent_m = cell.array.accelerometers().iter().map(|a| a.position_m.norm()).fold(0.0, f64::max);
+    (0..cell.layout.len())
+        .map(|i| match cell.layout.kind(i) {
+            crate::calib::ParamKind::Location(_) => 0.5 * extent_m,
+            crate::calib::ParamKind::Misalignment(_) => 0.5 * crate::calib::estimate::SMALL_ERROR_ANGLE_RAD,
+            _ => f64::INFINITY,
+        })
+        .collect()
+}
+
+fn leaves_small_error_region(cov: &DMatrix<f64>, limits: &[f64]) -> bool {
+    limits.iter().enumerate().any(|(i, l)| cov[(i, i)].max(0.0).sqrt() > *l)
+}

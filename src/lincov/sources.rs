@@ -1,0 +1,219 @@
+//! The parameter errors each compensation navigates with, as LinCov models them: their mean and
+//! covariance in the layout's parameter vector (SI).
+//!
+//! - `nominal`: `x_nominal - x_true`, with `x_true` from the error distributions (mean and
+//!   variance of each; a uniform one by its mean and `half_width^2 / 3`);
+//! - `estimated`: `x_estimated - x_true ~ N(0, F(x_true)^-1)`, `F` the schedule's Fisher
+//!   information at the true errors for the cell's white noise, with the fixture's tilts
+//!   marginalised under their prior (`calib::pose::marginal_fisher`). The part of that
+//!   covariance the fixture adds, `F^-1 - F_perfect^-1` (positive semi-definite: marginalising
+//!   only removes information), is kept apart for the error budget.
+
+use nalgebra::{DMatrix, DVector, SymmetricEigen};
+
+use crate::calib::fisher::{NULL_TOLERANCE, Targets, fisher_information};
+use crate::calib::params::{Layout, PER_ACCEL};
+use crate::calib::pose::marginal_fisher;
+use crate::mc::Cell;
+use crate::rng::trial_rng;
+use crate::sensor::params::ArrayParams;
+use rand::RngExt;
+
+/// Salt of the stream that draws the truths of a mixture when there are too many varying
+/// parameters for the Sobol sequence.
+const TRUTH_SALT: u64 = 0x6c69_6e63_6f76_7472;
+
+/// The centre of the error distributions (means, fixed values), layout form: the reference the
+/// navigation is linearised about.
+pub fn reference(cell: &Cell) -> DVector<f64> {
+    cell.errors.at(&cell.layout, |_| None)
+}
+
+/// What nominal compensation assumes, in layout form (the nominal scale factors, every other
+/// error 0).
+pub fn nominal_parameters(cell: &Cell) -> DVector<f64> {
+    let nominal = ArrayParams::nominal_with_scale_factors(&cell.array, &cell.errors.nominal_scale_factor);
+    // The nominal geometry converts to either form exactly.
+    cell.layout.pack(&nominal).unwrap_or_else(|_| DVector::zeros(cell.layout.len()))
+}
+
+/// The nominal compensation's parameter error `x_nominal - x_true`: mean and variance of each
+/// parameter (independent).
+pub fn nominal_errors(cell: &Cell) -> (DVector<f64>, DVector<f64>) {
+    let e = &cell.errors;
+    let mean = nominal_parameters(cell) - reference(cell);
+    let mut variance = DVector::zeros(cell.layout.len());
+    for j in 0..cell.array.len() {
+        let o = PER_ACCEL * j;
+        let sd = [
+            e.nominal_scale_factor[j] * e.scale_factor_rel.sigma(j),
+            e.bias_m_s2.sigma(j),
+            e.misalignment_rad.sigma(j),
+            e.misalignment_rad.sigma(j),
+            e.location_m.sigma(j),
+            e.location_m.sigma(j),
+            e.location_m.sigma(j),
+        ];
+        for (a, s) in sd.iter().enumerate() {
+            variance[o + a] = s * s;
+        }
+    }
+    (mean, variance)
+}
+
+/// The truths a mixture is drawn over: `count` points of the varying parameters'
+/// distributions (Owen-scrambled Sobol points through each distribution's quantile function,
+/// up to 256 varying parameters; independent draws beyond), or the reference alone when no
+/// parameter varies.
+pub fn truths(cell: &Cell, seed: u64, count: usize) -> Vec<DVector<f64>> {
+    let varying = cell.errors.varying(&cell.layout);
+    if varying.is_empty() {
+        return vec![reference(cell)];
+    }
+    let scramble = (seed & 0xffff_ffff) as u32 ^ 0x6c63_7674;
+    (0..count)
+        .map(|m| {
+            let u: Vec<f64> = if varying.len() <= 256 {
+                (0..varying.len()).map(|d| sobol_burley::sample(m as u32, d as u32, scramble) as f64).collect()
+            } else {
+                let mut rng = trial_rng(seed ^ TRUTH_SALT, m as u64);
+                (0..varying.len()).map(|_| rng.random::<f64>()).collect()
+            };
+            cell.errors.at(&cell.layout, |i| varying.iter().position(|&v| v == i).map(|k| u[k].clamp(1e-9, 1.0 - 1e-9)))
+        })
+        .collect()
+}
+
+/// The estimated compensation's parameter-error covariance at one truth.
+#[derive(Debug, Clone)]
+pub struct Calibration {
+    /// `F^-1` with the fixture's tilts marginalised (the pseudo-inverse on the identifiable part).
+    pub covariance: DMatrix<f64>,
+    /// The part of `covariance` the fixture's prior adds (zero for a perfect fixture).
+    pub fixture: DMatrix<f64>,
+    /// Parameter-space directions the schedule cannot identify (unit length in target units,
+    /// mapped back to SI), with the parameters that share in them.
+    pub null: Vec<(DVector<f64>, Vec<usize>)>,
+}
+
+/// The Cramer-Rao covariance of `cell`'s schedule at truth `x` for white noise of density
+/// `density_m_s2_per_sqrt_hz` (see the module docs), with its null directions.
+pub fn calibration(cell: &Cell, x: &DVector<f64>, density_m_s2_per_sqrt_hz: f64) -> Calibration {
+    calibration_with(cell, x, density_m_s2_per_sqrt_hz, true)
+}
+
+/// [`calibration`]; without `find_null`, a positive definite information is inverted by Cholesky
+/// (the eigen-decomposition only where that fails), for the many truths of a mixture.
+pub fn calibration_with(cell: &Cell, x: &DVector<f64>, density_m_s2_per_sqrt_hz: f64, find_null: bool) -> Calibration {
+    let p = cell.layout.len();
+    if density_m_s2_per_sqrt_hz <= 0.0 {
+        // Noise-free: every identifiable parameter is estimated exactly; the null directions do not
+        // depend on the noise's scale.
+        let null = if find_null { calibration_with(cell, x, 1.0, true).null } else { vec![] };
+        return Calibration { covariance: DMatrix::zeros(p, p), fixture: DMatrix::zeros(p, p), null };
+    }
+    let g = cell.calibration.gravity_m_s2;
+    let pose = &cell.calibration.pose;
+    let fim = marginal_fisher(&cell.layout, x, &cell.schedule, g, density_m_s2_per_sqrt_hz, pose);
+    let invert = |fim: &DMatrix<f64>, coupled: bool| match (find_null, cholesky_inverse(fim, coupled)) {
+        (false, Some(inv)) => (inv, vec![]),
+        _ => pseudo_inverse(&cell.layout, x, fim, coupled),
+    };
+    let (covariance, null) = invert(&fim, !pose.is_perfect());
+    let fixture = if pose.is_perfect() {
+        DMatrix::zeros(p, p)
+    } else {
+        let perfect = fisher_information(&cell.layout, x, &cell.schedule, g, density_m_s2_per_sqrt_hz);
+        let (perfect, _) = invert(&perfect, false);
+        let d = &covariance - perfect;
+        (&d + d.transpose()) * 0.5
+    };
+    Calibration { covariance, fixture, null }
+}
+
+/// The inverse of a positive definite Fisher information by Cholesky (block by block unless
+/// `coupled`), after scaling to unit diagonal; `None` where a block is not positive definite or
+/// is numerically singular (its scaled pivots below 1e-12 of the largest).
+fn cholesky_inverse(fim: &DMatrix<f64>, coupled: bool) -> Option<DMatrix<f64>> {
+    let p = fim.nrows();
+    let blocks: Vec<std::ops::Range<usize>> = if coupled {
+        std::iter::once(0..p).collect()
+    } else {
+        (0..p / PER_ACCEL).map(|j| PER_ACCEL * j..PER_ACCEL * (j + 1)).collect()
+    };
+    let mut out = DMatrix::zeros(p, p);
+    for b in blocks {
+        let n = b.len();
+        let d: Vec<f64> = b.clone().map(|i| fim[(i, i)]).collect();
+        if d.iter().any(|v| v.is_nan() || *v <= 0.0) {
+            return None;
+        }
+        let scaled = DMatrix::from_fn(n, n, |r, c| fim[(b.start + r, b.start + c)] / (d[r] * d[c]).sqrt());
+        let chol = scaled.cholesky()?;
+        let l = chol.l_dirty();
+        let (lo, hi) = (0..n).map(|i| l[(i, i)]).fold((f64::INFINITY, 0.0_f64), |a, v| (a.0.min(v), a.1.max(v)));
+        if lo * lo < 1e-12 * hi * hi {
+            return None;
+        }
+        let inv = chol.inverse();
+        for r in 0..n {
+            for c in 0..n {
+                out[(b.start + r, b.start + c)] = inv[(r, c)] / (d[r] * d[c]).sqrt();
+            }
+        }
+    }
+    Some(out)
+}
+
+/// A null direction of a Fisher information and the parameters it reaches.
+pub type NullDirection = (DVector<f64>, Vec<usize>);
+
+/// The pseudo-inverse of a Fisher information, in target-scaled units (so that parameters of
+/// different units compare), and its null directions. Block by block (7 x 7 per accelerometer)
+/// unless `coupled`.
+pub fn pseudo_inverse(
+    layout: &Layout,
+    x: &DVector<f64>,
+    fim: &DMatrix<f64>,
+    coupled: bool,
+) -> (DMatrix<f64>, Vec<NullDirection>) {
+    let p = layout.len();
+    let target = Targets::default().si(layout, x);
+    let blocks: Vec<Vec<usize>> = if coupled {
+        vec![(0..p).collect()]
+    } else {
+        (0..layout.array().len()).map(|j| (PER_ACCEL * j..PER_ACCEL * (j + 1)).collect()).collect()
+    };
+    let mut cov = DMatrix::zeros(p, p);
+    let mut null = Vec::new();
+    for block in blocks {
+        let n = block.len();
+        let scaled = DMatrix::from_fn(n, n, |a, b| fim[(block[a], block[b])] * target[block[a]] * target[block[b]]);
+        // A well-conditioned block inverts by Cholesky; otherwise by eigenvalues, keeping the
+        // identifiable part.
+        let sym = (&scaled + scaled.transpose()) * 0.5;
+        let eig = SymmetricEigen::new(sym);
+        let max = eig.eigenvalues.max().max(f64::MIN_POSITIVE);
+        for (k, &lambda) in eig.eigenvalues.iter().enumerate() {
+            let v = eig.eigenvectors.column(k);
+            if lambda <= NULL_TOLERANCE * max {
+                let mut dir = DVector::zeros(p);
+                let mut who = Vec::new();
+                for (a, &i) in block.iter().enumerate() {
+                    dir[i] = v[a] * target[i];
+                    if v[a].abs() > 1e-6 {
+                        who.push(i);
+                    }
+                }
+                null.push((dir, who));
+                continue;
+            }
+            for (a, &i) in block.iter().enumerate() {
+                for (b, &j) in block.iter().enumerate() {
+                    cov[(i, j)] += v[a] * v[b] / lambda * target[i] * target[j];
+                }
+            }
+        }
+    }
+    (cov, null)
+}

@@ -1,0 +1,176 @@
+//! A verdict on what to trust in a calibration, per parameter kind, from the tests it already
+//! ran: the fit's convergence, the static and rotation-phase misfits against the noise
+//! (chi^2/dof), the held-out recordings' static misfit, the parameters the data cannot see, and
+//! the gyroscope check. `gfcal calibrate` prints it last and writes it as the JSON's
+//! `assessment: [{kind, trustworthy, reason}]`, and the report shows it.
+//!
+//! The rules (thresholds stated before looking at the recordings):
+//! - a misfit up to [`MISFIT_LIMIT`] times the noise (chi^2/dof) is carried by the sigmas (the
+//!   static sigmas are widened by its root, the rotation phase's weights are its own residuals);
+//!   beyond it the model, not the noise, leaves the residual, and the parameters it drives are
+//!   not trustworthy;
+//! - a kind with any unidentified parameter is not trustworthy;
+//! - the gyroscope-free rate is trustworthy only when it meets the gyroscopes within
+//!   [`RATE_LIMIT`] (RMS difference over RMS rate), when the array has gyroscopes.
+
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+use super::calibrate::Calibration;
+use super::model::PER_ACCEL;
+
+/// Misfit (chi^2/dof) above which a phase is not fitted by the model.
+pub const MISFIT_LIMIT: f64 = 10.0;
+/// Relative RMS difference from the gyroscopes above which the gyroscope-free rate is not
+/// trustworthy.
+pub const RATE_LIMIT: f64 = 0.05;
+
+/// The verdict on one kind of parameter.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Verdict {
+    /// `scale_factors`, `biases`, `tilts`, `locations` or `rate`.
+    pub kind: &'static str,
+    pub trustworthy: bool,
+    pub reason: String,
+}
+
+/// `1,811` for 1811.4: a ratio as the verdicts print it.
+fn times(x: f64) -> String {
+    if !x.is_finite() {
+        return format!("{x}");
+    }
+    let r = x.round() as i64;
+    if r.abs() < 10 {
+        return format!("{x:.1}");
+    }
+    let s = r.abs().to_string();
+    let mut out = String::new();
+    for (i, c) in s.chars().enumerate() {
+        if i > 0 && (s.len() - i).is_multiple_of(3) {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    if r < 0 { format!("-{out}") } else { out }
+}
+
+/// The verdicts of a calibration (module docs); `held_static_chi2_dof` are the held-out
+/// recordings' static misfits.
+pub fn assess(cal: &Calibration, held_static_chi2_dof: &[f64]) -> Vec<Verdict> {
+    let fit = &cal.fit;
+    let n = fit.params.len();
+    let unidentified = |p: usize| (0..n).filter(|&j| !fit.identified(j, p)).count();
+    let verdict = |kind, trustworthy, reason: String| Verdict { kind, trustworthy, reason };
+    let mut out = Vec::new();
+    let static_x = fit.static_chi2_dof;
+    let held_worst = held_static_chi2_dof.iter().copied().filter(|v| v.is_finite()).fold(f64::NAN, f64::max);
+    for (kind, ps) in [("scale_factors", &[0][..]), ("biases", &[1][..]), ("tilts", &[2, 3][..])] {
+        let missing: usize = ps.iter().map(|&p| unidentified(p)).sum();
+        let v = if !fit.converged {
+            verdict(kind, false, "not trustworthy: the fit did not converge".into())
+        } else if missing > 0 {
+            verdict(
+                kind,
+                false,
+                format!(
+                    "not trustworthy: {missing} of {} unidentified (combinations the data cannot see)",
+                    n * ps.len()
+                ),
+            )
+        } else if !(static_x <= MISFIT_LIMIT) {
+            verdict(
+                kind,
+                false,
+                format!(
+                    "not trustworthy: the static phase misfits by {} times its noise (chi^2/dof; the sigmas carry up to {MISFIT_LIMIT})",
+                    times(static_x)
+                ),
+            )
+        } else if held_worst > MISFIT_LIMIT {
+            verdict(
+                kind,
+                false,
+                format!(
+                    "not trustworthy: a held-out recording's static poses misfit by {} times their noise (chi^2/dof)",
+                    times(held_worst)
+                ),
+            )
+        } else {
+            verdict(
+                kind,
+                true,
+                format!(
+                    "trustworthy: the static phase fits to {} times its noise (chi^2/dof; sigmas widened by its root)",
+                    times(static_x)
+                ),
+            )
+        };
+        out.push(v);
+    }
+    let dyn_x = fit.dynamic_chi2_dof;
+    let missing = (4..PER_ACCEL).map(unidentified).sum::<usize>();
+    out.push(if !fit.locations_identified {
+        verdict("locations", false, "not trustworthy: no rotation phase, so the locations are not identified".into())
+    } else if !fit.converged {
+        verdict("locations", false, "not trustworthy: the fit did not converge".into())
+    } else if missing > 0 {
+        verdict(
+            "locations",
+            false,
+            format!("not trustworthy: {missing} of {} unidentified (combinations the data cannot see)", 3 * n),
+        )
+    } else if !(dyn_x <= MISFIT_LIMIT) {
+        verdict(
+            "locations",
+            false,
+            format!(
+                "not trustworthy: the rotation phase misfits by {} times its noise (rotation-phase chi^2/dof against the static noise)",
+                times(dyn_x)
+            ),
+        )
+    } else {
+        verdict("locations", true, format!("trustworthy: the rotation phase fits to {} times its noise", times(dyn_x)))
+    });
+    if fit.locations_identified {
+        out.push(if cal.use_gyro {
+            verdict("rate", true, "trustworthy: measured by the reference gyroscopes (--use-gyro)".into())
+        } else if let Some(g) = &cal.gyro_check {
+            if g.relative <= RATE_LIMIT {
+                verdict(
+                    "rate",
+                    true,
+                    format!("trustworthy: the gyroscope-free rate meets the gyroscopes to {:.1}% RMS", 100.0 * g.relative),
+                )
+            } else {
+                verdict(
+                    "rate",
+                    false,
+                    format!(
+                        "not trustworthy: the gyroscope-free rate differs from the gyroscopes by {:.1}% RMS (limit {:.0}%)",
+                        100.0 * g.relative,
+                        100.0 * RATE_LIMIT
+                    ),
+                )
+            }
+        } else if !(dyn_x <= MISFIT_LIMIT) || missing > 0 || !fit.unseen.is_empty() {
+            verdict(
+                "rate",
+                false,
+                "not trustworthy: no gyroscope to check it, and the rotation phase misfits or leaves combinations unseen".into(),
+            )
+        } else {
+            verdict("rate", true, "trustworthy by the fit alone (no gyroscope to check it)".into())
+        });
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn ratios_print_with_thousands_separators() {
+        assert_eq!(super::times(1811.4), "1,811");
+        assert_eq!(super::times(2.04), "2.0");
+        assert_eq!(super::times(1234567.0), "1,234,567");
+        assert_eq!(super::times(35.2), "35");
+    }
+}

@@ -1,0 +1,498 @@
+//! The packages' sample clocks in a calibration: their per-sample time offsets measured by the
+//! reference gyroscopes, the jerk that turns an age into an output error, and the outputs
+//! corrected to a common instant.
+//!
+//! **Model.** With the packages' clocks (`selfcal::clock`) an output of accelerometer `j` in
+//! package `p` at dynamic sample `i` is
+//!
+//! ```text
+//! s_j = k_j (b_j + a_j . [q_j - tau_p,i (J_i + dalpha_i/dt x r'_j + D_i r'_j)])
+//! D_i r = alpha_i (w_i . r) + w_i (alpha_i . r) - 2 (w_i . alpha_i) r
+//! ```
+//!
+//! with `tau_p,i` the package's age less the mean age of the packages at that sample, `J_i` the
+//! jerk (the time derivative of the specific force at the origin) and `dalpha_i/dt` the angular
+//! jerk: 6 unknowns a sample ([`TIMING_UNKNOWNS_PER_SAMPLE`]). They live at the aliased high
+//! frequencies of hand-held motion, so they are not derivatives of the sampled motion (a jerk
+//! from differences of the 16 ms samples makes the misfit worse). `D_i r` is the derivative of
+//! the centripetal term, known from the motion. The motion is that of the mean instant: the
+//! per-sample motion absorbs a shift common to every package. With `--use-gyro` the reference
+//! rate is the least-squares combination of every package's gyroscope, each read at its own
+//! package's instant; with equal weight per package its instant is the mean instant to first
+//! order, which is the instant the motion is referred to.
+//!
+//! **Gauge.** A change common to every package's clock (its phase, rate or drift) moves every
+//! age alike, and the ages enter only relative to their mean: the linearised model does not
+//! see it (3 null directions). Only where a package's sawtooth wraps does the common part move
+//! the relative ages; the common part is taken from the gyroscopes' sawtooth fit (their own
+//! offsets are relative too, but a rising sawtooth of a 1 ms wrap fixes it), and only the
+//! relative part is fitted to the accelerometers. Without gyroscopes the outputs are also
+//! unchanged by the mirror `age -> period - age` (every rate offset's sign flipped) with the
+//! timing motion's sign flipped: a gyroscope-free recording cannot tell a fast clock from a
+//! slow one.
+
+use std::ops::Range;
+
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector6};
+
+use super::clock::{Offsets, SampleClock, relative_ages};
+use super::data::DynamicData;
+use super::model::{SampleMotion, Sensor};
+use super::recording::Recording;
+
+/// The gyroscopes' measure of every package's time offset in the rotation phase: each package's
+/// rate (bias from the static intervals removed, then mapped onto the packages' mean by a 3 x 3
+/// least-squares map, which removes its scale and misalignment), less the mean, projected on the
+/// angular acceleration (five-point derivative of the mean rate) and divided by its magnitude:
+/// `offset_p = -(w_p - w_mean) . alpha / |alpha|^2`, positive when the package is late. Samples
+/// whose gyroscopes clip within two samples, or where `|alpha|` is below 100 rad/s^2, are left
+/// out; weights `min(|alpha|, 1500)^2` (the offsets' inverse variance up to a constant).
+///
+/// `dynamic`: the recording's rows of the rotation phase (runs of consecutive rows); `statics`:
+/// rows of the static intervals. `None` without a gyroscope in every package.
+pub fn gyro_offsets(rec: &Recording, dynamic: &[usize], statics: &[usize]) -> Option<Vec<Offsets>> {
+    let packages = rec.package_gyro_rate_rad_s.len();
+    if packages < 2 || rec.package_gyro_rate_rad_s.iter().any(Vec::is_empty) || statics.is_empty() {
+        return None;
+    }
+    let dt = host_dt_s(&rec.t_s)?;
+    let rates = &rec.package_gyro_rate_rad_s;
+    let bias: Vec<Vector3<f64>> =
+        rates.iter().map(|r| statics.iter().map(|&i| r[i]).sum::<Vector3<f64>>() / statics.len() as f64).collect();
+    let ok = |i: usize| i >= 2 && i + 2 < rec.t_s.len() && (i - 2..=i + 2).all(|k| !rec.gyro_clipped[k]);
+    let rows: Vec<usize> = dynamic.iter().copied().filter(|&i| !rec.gyro_clipped[i]).collect();
+    // Maps of each package onto the mean (twice: the mean of the mapped rates the second time).
+    let mut maps = vec![Matrix3::identity(); packages];
+    for _ in 0..2 {
+        let mean = |i: usize, maps: &[Matrix3<f64>]| -> Vector3<f64> {
+            (0..packages).map(|p| maps[p] * (rates[p][i] - bias[p])).sum::<Vector3<f64>>() / packages as f64
+        };
+        let mut new = Vec::with_capacity(packages);
+        for p in 0..packages {
+            let mut xx = Matrix3::zeros();
+            let mut yx = Matrix3::zeros();
+            for &i in &rows {
+                let x = rates[p][i] - bias[p];
+                xx += x * x.transpose();
+                yx += mean(i, &maps) * x.transpose();
+            }
+            new.push(xx.try_inverse().map_or(Matrix3::identity(), |inv| yx * inv));
+        }
+        maps = new;
+    }
+    let mapped = |p: usize, i: usize| maps[p] * (rates[p][i] - bias[p]);
+    let mean = |i: usize| (0..packages).map(|p| mapped(p, i)).sum::<Vector3<f64>>() / packages as f64;
+    let in_dynamic: std::collections::HashSet<usize> = dynamic.iter().copied().collect();
+    let mut out: Vec<Offsets> = (0..packages)
+        .map(|_| Offsets { sample: Vec::new(), t_s: Vec::new(), offset_s: Vec::new(), weight: Vec::new() })
+        .collect();
+    let t0 = rec.t_s[0];
+    for &i in dynamic {
+        if !ok(i) || !(i - 2..=i + 2).all(|k| in_dynamic.contains(&k)) {
+            continue;
+        }
+        let alpha = (mean(i - 2) - mean(i - 1) * 8.0 + mean(i + 1) * 8.0 - mean(i + 2)) / (12.0 * dt);
+        let a2 = alpha.norm_squared();
+        if a2 < 100.0 * 100.0 {
+            continue;
+        }
+        let w = a2.sqrt().min(1500.0).powi(2);
+        let m = mean(i);
+        for (p, o) in out.iter_mut().enumerate() {
+            o.sample.push(((rec.t_s[i] - t0) / dt).round() as i64);
+            o.t_s.push(rec.t_s[i]);
+            o.offset_s.push(-(mapped(p, i) - m).dot(&alpha) / a2);
+            o.weight.push(w);
+        }
+    }
+    (out[0].t_s.len() >= 16).then_some(out)
+}
+
+/// The host's sample period: the median step of the time stamps.
+pub fn host_dt_s(t_s: &[f64]) -> Option<f64> {
+    let mut d: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
+    if d.is_empty() {
+        return None;
+    }
+    d.sort_by(f64::total_cmp);
+    Some(d[d.len() / 2])
+}
+
+/// Each accelerometer's relative age at every dynamic sample (samples x accelerometers), from
+/// the clocks of the packages and the package of each accelerometer.
+pub fn accelerometer_ages(d: &DynamicData, clocks: &[Option<SampleClock>], package_of: &[usize]) -> DMatrix<f64> {
+    let mut tau = vec![0.0; clocks.len()];
+    DMatrix::from_fn(d.samples(), package_of.len(), |i, j| {
+        if j == 0 {
+            relative_ages(clocks, d.t_s[i], &mut tau);
+        }
+        tau[package_of[j]]
+    })
+}
+
+/// The centripetal term's time derivative at `r`: `D r` of the module docs.
+pub fn centripetal_rate(m: &SampleMotion, r: &Vector3<f64>) -> Vector3<f64> {
+    let (a, w) = (&m.alpha_rad_s2, &m.omega_rad_s);
+    a * w.dot(r) + w * a.dot(r) - r * (2.0 * w.dot(a))
+}
+
+/// Unknowns a sample spends on the timing model: the jerk and the angular jerk.
+pub const TIMING_UNKNOWNS_PER_SAMPLE: usize = 6;
+
+/// The timing motion of one sample: jerk (m/s^3) and angular jerk (rad/s^3).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TimingMotion {
+    pub jerk_m_s3: Vector3<f64>,
+    pub angular_jerk_rad_s3: Vector3<f64>,
+}
+
+impl TimingMotion {
+    fn from_vector(u: &Vector6<f64>) -> Self {
+        Self { jerk_m_s3: Vector3::new(u[0], u[1], u[2]), angular_jerk_rad_s3: Vector3::new(u[3], u[4], u[5]) }
+    }
+}
+
+/// The timing term of an output's model at one sample, in output units:
+/// `k a . (J + dalpha/dt x r + D r)`, which the output loses times the accelerometer's relative
+/// age.
+pub fn timing_gain(s: &Sensor, m: &SampleMotion, timing: &TimingMotion) -> f64 {
+    let r = &s.position_m;
+    s.k * s.axis.dot(&(timing.jerk_m_s3 + timing.angular_jerk_rad_s3.cross(r) + centripetal_rate(m, r)))
+}
+
+/// The clocks fitted with a calibration, and what they explain.
+#[derive(Debug, Clone)]
+pub struct ClockEstimate {
+    /// Per package: its clock (`None` for a package without a free-running clock).
+    pub clocks: Vec<Option<SampleClock>>,
+    /// Per package: sigmas of `(rate_offset, drift_per_s, phase_s)` (see `sigma_check`).
+    pub sigma: Vec<Option<[f64; 3]>>,
+    /// The common part's sigmas alone (rate offset, drift, phase): from the gyroscopes' fit.
+    pub common_sigma: [f64; 3],
+    /// How the sigmas were checked: the two halves of the rotation phase fitted apart, their
+    /// relative rate offsets compared with the sigmas (Birge ratio, and the factor applied).
+    pub sigma_check: SigmaCheck,
+    /// The timing motion at every dynamic sample.
+    pub timing: Vec<TimingMotion>,
+    /// How the clocks were first found.
+    pub start: &'static str,
+    /// The clocks the gyroscopes alone measure (their offsets' sawtooth), where they were used.
+    pub gyroscope_clocks: Option<Vec<Option<SampleClock>>>,
+    /// Dynamic residual RMS (all unclipped outputs) before the clocks and after, m/s^2.
+    pub residual_rms_before_m_s2: f64,
+    pub residual_rms_after_m_s2: f64,
+    /// Outer iterations (corrected outputs refitted).
+    pub iterations: usize,
+    /// The share of the rotation phase's weighted misfit (at the final parameters and motion)
+    /// that the timing model removes with the fitted clocks, and with the clocks read at
+    /// shifted times (the null: [`ClockProblem::shares_removed`]).
+    pub share_removed: f64,
+    pub null_shares_removed: Vec<f64>,
+}
+
+impl ClockEstimate {
+    /// The rank p-value of the fitted clocks' share among the null's: `(1 + #{null >= share}) /
+    /// (1 + nulls)`.
+    pub fn null_p_value(&self) -> f64 {
+        let above = self.null_shares_removed.iter().filter(|&&v| v >= self.share_removed).count();
+        (1 + above) as f64 / (1 + self.null_shares_removed.len()) as f64
+    }
+
+    /// Each clocked package's rate offset less the clocked packages' mean (1), with its sigma.
+    pub fn relative_rate_offsets(&self) -> Vec<Option<(f64, f64)>> {
+        relative_rates(&self.clocks).into_iter().zip(&self.sigma).map(|(r, s)| r.zip(s.map(|s| s[0]))).collect()
+    }
+}
+
+/// Each clocked package's rate offset less the clocked packages' mean (1).
+pub fn relative_rates(clocks: &[Option<SampleClock>]) -> Vec<Option<f64>> {
+    let rates: Vec<f64> = clocks.iter().flatten().map(|c| c.rate_offset).collect();
+    let mean = rates.iter().sum::<f64>() / rates.len().max(1) as f64;
+    clocks.iter().map(|c| c.map(|c| c.rate_offset - mean)).collect()
+}
+
+/// The sigmas' check on the two halves of the rotation phase.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SigmaCheck {
+    /// RMS over the clocked packages of the halves' relative rate-offset difference over its
+    /// linearised sigma (1 when the sigmas are right).
+    pub birge_ratio: f64,
+    /// The factor every linearised sigma was multiplied by: `max(1, birge_ratio)`.
+    pub inflation: f64,
+    /// RMS over packages of the halves' relative rate-offset difference (1).
+    pub half_difference_rms: f64,
+}
+
+/// What the clock part of a calibration works on, computed once at the current parameters and
+/// motion: each output's residual against the model without timing, the known part of its
+/// timing term (`k a . D r`), and each accelerometer's gains on the timing motion
+/// (`k a` and `k r x a`).
+pub struct ClockProblem {
+    n: usize,
+    t_s: Vec<f64>,
+    residual: Vec<f64>,
+    known_gain: Vec<f64>,
+    used: Vec<bool>,
+    gain: Vec<Vector6<f64>>,
+    weights: Vec<f64>,
+    package_of: Vec<usize>,
+}
+
+impl ClockProblem {
+    /// `sensors` at the current parameters, `motion` fitted to `d`, `weights` the outputs'
+    /// inverse variances, `package_of` each accelerometer's package.
+    pub fn new(
+        sensors: &[Sensor],
+        d: &DynamicData,
+        motion: &[SampleMotion],
+        weights: &[f64],
+        package_of: &[usize],
+    ) -> Self {
+        let n = sensors.len();
+        let samples = d.samples();
+        let mut residual = Vec::with_capacity(samples * n);
+        let mut known_gain = Vec::with_capacity(samples * n);
+        for (i, m) in motion.iter().enumerate().take(samples) {
+            for (j, s) in sensors.iter().enumerate() {
+                residual.push(d.outputs[(i, j)] - s.output(&m.specific_force_m_s2(&s.position_m)));
+                known_gain.push(s.k * s.axis.dot(&centripetal_rate(m, &s.position_m)));
+            }
+        }
+        let gain = sensors
+            .iter()
+            .map(|s| {
+                let (a, b) = (s.axis * s.k, s.position_m.cross(&s.axis) * s.k);
+                Vector6::new(a[0], a[1], a[2], b[0], b[1], b[2])
+            })
+            .collect();
+        Self {
+            n,
+            t_s: d.t_s.clone(),
+            residual,
+            known_gain,
+            used: d.used.clone(),
+            gain,
+            weights: weights.to_vec(),
+            package_of: package_of.to_vec(),
+        }
+    }
+
+    pub fn samples(&self) -> usize {
+        self.t_s.len()
+    }
+
+    /// One sample's timing motion and weighted misfit at the relative ages `tau` of the
+    /// packages: `r + tau (c + h . u) = 0` solved for `u` by least squares (`u = 0` where the
+    /// ages do not span its six dimensions).
+    fn sample_fit(&self, i: usize, tau_package: &[f64]) -> (Vector6<f64>, f64) {
+        let base = i * self.n;
+        let mut h = Matrix6::zeros();
+        let mut b = Vector6::zeros();
+        for j in 0..self.n {
+            if !self.used[base + j] {
+                continue;
+            }
+            let tau = tau_package[self.package_of[j]];
+            let w = self.weights[j];
+            let d = self.gain[j] * tau;
+            let r = self.residual[base + j] + tau * self.known_gain[base + j];
+            h += d * d.transpose() * w;
+            b -= d * (w * r);
+        }
+        let u = {
+            let scale = (0..6).map(|a| h[(a, a)]).fold(0.0, f64::max);
+            let eig = h.symmetric_eigenvalues();
+            if scale > 0.0 && eig.min() > 1e-10 * scale { h.cholesky().map(|c| c.solve(&b)) } else { None }
+        }
+        .unwrap_or_else(Vector6::zeros);
+        let mut cost = 0.0;
+        for j in 0..self.n {
+            if self.used[base + j] {
+                let tau = tau_package[self.package_of[j]];
+                let r = self.residual[base + j] + tau * (self.known_gain[base + j] + self.gain[j].dot(&u));
+                cost += self.weights[j] * r * r;
+            }
+        }
+        (u, cost)
+    }
+
+    /// The misfit over `rows` with the timing motion refitted at every sample, and the motions.
+    pub fn cost(&self, clocks: &[Option<SampleClock>], rows: Range<usize>) -> (f64, Vec<Vector6<f64>>) {
+        use rayon::prelude::*;
+        let parts: Vec<(Vector6<f64>, f64)> = rows
+            .into_par_iter()
+            .map_init(
+                || vec![0.0; clocks.len()],
+                |tau, i| {
+                    relative_ages(clocks, self.t_s[i], tau);
+                    self.sample_fit(i, tau)
+                },
+            )
+            .collect();
+        (parts.iter().map(|p| p.1).sum(), parts.into_iter().map(|p| p.0).collect())
+    }
+
+    /// The misfit without the timing model (every age zero).
+    pub fn cost_without_timing(&self) -> f64 {
+        (0..self.samples())
+            .map(|i| {
+                (0..self.n)
+                    .filter(|&j| self.used[i * self.n + j])
+                    .map(|j| self.weights[j] * self.residual[i * self.n + j].powi(2))
+                    .sum::<f64>()
+            })
+            .sum()
+    }
+
+    /// The share of the misfit without timing that the timing model removes at `clocks`, and at
+    /// each of `shifts_s`: the same clocks read `shift` seconds later, ages that have the clocks'
+    /// statistics but not their samples, a null for what six unknowns a sample remove by chance.
+    pub fn shares_removed(&self, clocks: &[Option<SampleClock>], shifts_s: &[f64]) -> (f64, Vec<f64>) {
+        use rayon::prelude::*;
+        let none = self.cost_without_timing().max(1e-300);
+        let at = |shift: f64| -> f64 {
+            let cost: f64 = (0..self.samples())
+                .into_par_iter()
+                .map_init(
+                    || vec![0.0; clocks.len()],
+                    |tau, i| {
+                        relative_ages(clocks, self.t_s[i] + shift, tau);
+                        self.sample_fit(i, tau).1
+                    },
+                )
+                .sum();
+            1.0 - cost / none
+        };
+        (at(0.0), shifts_s.iter().map(|&s| at(s)).collect())
+    }
+
+    /// The timing motion of every sample.
+    pub fn timing(&self, clocks: &[Option<SampleClock>]) -> Vec<TimingMotion> {
+        self.cost(clocks, 0..self.samples()).1.iter().map(TimingMotion::from_vector).collect()
+    }
+
+    /// The outputs corrected to the mean instant: `s + tau k a . (J + dalpha/dt x r + D r)`.
+    pub fn corrected(
+        &self,
+        outputs: &DMatrix<f64>,
+        clocks: &[Option<SampleClock>],
+        timing: &[TimingMotion],
+    ) -> DMatrix<f64> {
+        let mut out = outputs.clone();
+        let mut tau = vec![0.0; clocks.len()];
+        for (i, t) in timing.iter().enumerate().take(self.samples()) {
+            relative_ages(clocks, self.t_s[i], &mut tau);
+            let u = Vector6::new(
+                t.jerk_m_s3[0],
+                t.jerk_m_s3[1],
+                t.jerk_m_s3[2],
+                t.angular_jerk_rad_s3[0],
+                t.angular_jerk_rad_s3[1],
+                t.angular_jerk_rad_s3[2],
+            );
+            for j in 0..self.n {
+                out[(i, j)] += tau[self.package_of[j]] * (self.known_gain[i * self.n + j] + self.gain[j].dot(&u));
+            }
+        }
+        out
+    }
+
+    /// Gauss-Newton steps on the clocks' relative part over `rows` (the timing motion held at
+    /// each linearisation, the wraps held and re-assigned after each step, a step halved until
+    /// the misfit falls); the common part (the gauge) does not move. Returns the clocks, the
+    /// normal matrix over the clocked packages' `(rate_offset, drift, phase)` at the last
+    /// linearisation, and the misfit.
+    pub fn relative_steps(
+        &self,
+        clocks: &[Option<SampleClock>],
+        rows: Range<usize>,
+        steps: usize,
+    ) -> (Vec<Option<SampleClock>>, DMatrix<f64>, f64) {
+        use rayon::prelude::*;
+        let clocked: Vec<usize> = (0..clocks.len()).filter(|&p| clocks[p].is_some()).collect();
+        let npk = clocks.len() as f64;
+        let dim = 3 * clocked.len();
+        let mut current = clocks.to_vec();
+        let (mut cost, mut u) = self.cost(&current, rows.clone());
+        let mut normal = DMatrix::zeros(dim, dim);
+        for _ in 0..steps {
+            let (h, g) = rows
+                .clone()
+                .into_par_iter()
+                .fold(
+                    || (DMatrix::<f64>::zeros(dim, dim), DVector::<f64>::zeros(dim), vec![0.0; clocks.len()]),
+                    |(mut h, mut g, mut tau), i| {
+                        relative_ages(&current, self.t_s[i], &mut tau);
+                        let ui = &u[i - rows.start];
+                        // the package-level row: d r_j / d c_p = gain_j (delta(p, p_j) - 1/P) d age_p / d c_p
+                        let parts: Vec<[f64; 3]> = clocked
+                            .iter()
+                            .map(|&p| current[p].map_or([0.0; 3], |c| c.age_partials(self.t_s[i])))
+                            .collect();
+                        let mut row = vec![0.0; dim];
+                        for j in 0..self.n {
+                            if !self.used[i * self.n + j] {
+                                continue;
+                            }
+                            let gain = self.known_gain[i * self.n + j] + self.gain[j].dot(ui);
+                            let tj = tau[self.package_of[j]];
+                            let r = self.residual[i * self.n + j] + tj * gain;
+                            for (c, &p) in clocked.iter().enumerate() {
+                                let f = (if p == self.package_of[j] { 1.0 } else { 0.0 }) - 1.0 / npk;
+                                for a in 0..3 {
+                                    row[3 * c + a] = gain * f * parts[c][a];
+                                }
+                            }
+                            let w = self.weights[j];
+                            for a in 0..dim {
+                                if row[a] == 0.0 {
+                                    continue;
+                                }
+                                g[a] -= w * row[a] * r;
+                                for b in a..dim {
+                                    h[(a, b)] += w * row[a] * row[b];
+                                }
+                            }
+                        }
+                        (h, g, tau)
+                    },
+                )
+                .map(|(h, g, _)| (h, g))
+                .reduce(|| (DMatrix::zeros(dim, dim), DVector::zeros(dim)), |a, b| (a.0 + b.0, a.1 + b.1));
+            let mut h = h;
+            for a in 0..dim {
+                for b in 0..a {
+                    h[(a, b)] = h[(b, a)];
+                }
+            }
+            normal = h.clone();
+            let (inv, _) = crate::stats::symmetric_pinv(&h, 1e-12);
+            let step = &inv * &g;
+            let mut scale = 1.0;
+            let mut moved = false;
+            for _ in 0..6 {
+                let mut k = 0;
+                let trial: Vec<Option<SampleClock>> = current
+                    .iter()
+                    .map(|c| {
+                        c.map(|c| {
+                            let d = [scale * step[3 * k], scale * step[3 * k + 1], scale * step[3 * k + 2]];
+                            k += 1;
+                            c.moved(d)
+                        })
+                    })
+                    .collect();
+                let (after, u_after) = self.cost(&trial, rows.clone());
+                if after < cost {
+                    (current, cost, u, moved) = (trial, after, u_after, true);
+                    break;
+                }
+                scale *= 0.5;
+            }
+            if !moved {
+                break;
+            }
+        }
+        (current, normal, cost)
+    }
+}

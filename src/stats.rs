@@ -1,0 +1,101 @@
+//! Shared statistics: the tails of the chi-square and F distributions, the pseudo-inverse of a
+//! symmetric positive semi-definite matrix, and the Wald test built from them.
+//!
+//! Each tail returns `None` where the distribution does not exist (zero or non-finite degrees
+//! of freedom); the caller says what that means for it (NaN in a table, 1.0 for "no evidence").
+
+use nalgebra::{DMatrix, DVector};
+use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
+
+/// `P(X > x)` for `X ~ chi^2(dof)`; `None` when `dof` is not a valid number of degrees of freedom.
+pub fn chi2_sf(x: f64, dof: f64) -> Option<f64> {
+    ChiSquared::new(dof).ok().map(|d| d.sf(x))
+}
+
+/// The `p`-quantile of `chi^2(dof)`; `None` when `dof` is not valid.
+pub fn chi2_quantile(p: f64, dof: f64) -> Option<f64> {
+    ChiSquared::new(dof).ok().map(|d| d.inverse_cdf(p))
+}
+
+/// `P(X > x)` for `X ~ F(df1, df2)`; `None` when the degrees of freedom are not valid.
+pub fn f_sf(x: f64, df1: f64, df2: f64) -> Option<f64> {
+    FisherSnedecor::new(df1, df2).ok().map(|d| d.sf(x))
+}
+
+/// Pseudo-inverse of a symmetric positive semi-definite matrix, scaled by its diagonal first so
+/// that columns of different units compare; eigenvalues below `tolerance` times the largest are
+/// dropped. Returns the pseudo-inverse and the rank.
+pub fn symmetric_pinv(h: &DMatrix<f64>, tolerance: f64) -> (DMatrix<f64>, usize) {
+    let n = h.nrows();
+    if n == 0 {
+        return (DMatrix::zeros(0, 0), 0);
+    }
+    let d: Vec<f64> = (0..n).map(|i| if h[(i, i)] > 0.0 { 1.0 / h[(i, i)].sqrt() } else { 0.0 }).collect();
+    let scaled = DMatrix::from_fn(n, n, |i, j| h[(i, j)] * d[i] * d[j]);
+    let eig = scaled.symmetric_eigen();
+    let largest = eig.eigenvalues.iter().copied().fold(0.0f64, f64::max);
+    let mut inv = DMatrix::zeros(n, n);
+    let mut rank = 0;
+    for (k, &l) in eig.eigenvalues.iter().enumerate() {
+        if l > tolerance * largest && l > 0.0 {
+            let v = eig.eigenvectors.column(k);
+            inv.ger(1.0 / l, &v, &v, 1.0);
+            rank += 1;
+        }
+    }
+    (DMatrix::from_fn(n, n, |i, j| inv[(i, j)] * d[i] * d[j]), rank)
+}
+
+/// The p-value of a Wald test of `value` (zero mean) with covariance `cov`, on its rank.
+pub fn wald_p(value: &[f64], cov: &DMatrix<f64>) -> f64 {
+    let (inv, rank) = symmetric_pinv(cov, 1e-10);
+    if rank == 0 {
+        return 1.0;
+    }
+    let v = DVector::from_column_slice(value);
+    let w = (v.transpose() * inv * &v)[(0, 0)];
+    chi2_sf(w, rank as f64).filter(|p| p.is_finite()).unwrap_or(1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tails_match_closed_forms() {
+        // chi^2(2) has the tail exp(-x/2); chi^2(1) at 3.841459 is the 5% point.
+        for x in [0.1, 1.0, 4.0, 12.5] {
+            let p = chi2_sf(x, 2.0).expect("dof 2");
+            assert!((p - (-x / 2.0f64).exp()).abs() < 1e-12, "x {x}: {p}");
+        }
+        assert!((chi2_sf(3.841458820694124, 1.0).expect("dof 1") - 0.05).abs() < 1e-9);
+        assert!((chi2_quantile(0.95, 1.0).expect("dof 1") - 3.841458820694124).abs() < 1e-6);
+        assert!(chi2_sf(1.0, 0.0).is_none());
+        // F(2, inf) -> chi^2(2)/2; F(1, 1) at 1 is 1/2 by symmetry.
+        assert!((f_sf(1.0, 1.0, 1.0).expect("F(1,1)") - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_pseudo_inverse_inverts_the_seen_directions_and_counts_them() {
+        // A rank-2 matrix in 3 dimensions, columns of very different scales.
+        let a = DMatrix::from_row_slice(3, 2, &[1.0, 0.0, 0.0, 1e3, 1.0, 1e3]);
+        let h = &a * a.transpose();
+        let (p, rank) = symmetric_pinv(&h, 1e-12);
+        assert_eq!(rank, 2);
+        // Moore-Penrose: H P H = H.
+        let hph = &h * &p * &h;
+        assert!((hph - &h).norm() < 1e-9 * h.norm());
+        let full = DMatrix::from_row_slice(2, 2, &[4.0, 1.0, 1.0, 3.0]);
+        let (inv, r) = symmetric_pinv(&full, 1e-12);
+        assert_eq!(r, 2);
+        assert!((inv * &full - DMatrix::identity(2, 2)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn the_wald_test_of_a_one_sigma_value_is_the_chi2_1_tail_at_1() {
+        let cov = DMatrix::from_row_slice(1, 1, &[4.0]);
+        let p = wald_p(&[2.0], &cov);
+        assert!((p - 0.3173105078629141).abs() < 1e-9, "{p}");
+        assert_eq!(wald_p(&[1.0], &DMatrix::zeros(1, 1)), 1.0);
+    }
+}
