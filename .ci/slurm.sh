@@ -143,9 +143,11 @@ sa, sb = (a / "summary.csv").read_text(), (b / "summary.csv").read_text()
 assert sa == sb, "summary.csv differs"
 print(f"identical: {n} rows in {len(fa)} parts per table, and summary.csv")
 PY
-locks=$(find "$sharded/locks" -type f 2> /dev/null | wc -l)
-[ "$locks" -eq 0 ] || { echo "slurm.sh: $locks part claims left behind" >&2; exit 1; }
 # A finished run leaves no lock file or empty folder (issue 30; summarize tidies after the last task).
-[ ! -e "$sharded/.gfcal-run.lock" ] && [ ! -e "$sharded/locks" ] \
-  || { echo "slurm.sh: a lock file or the locks/ folder is left behind" >&2; exit 1; }
+# (No `find` on locks/: it is gone, and under pipefail a failing find would end this script silently.)
+if [ -e "$sharded/locks" ]; then
+  echo "slurm.sh: the locks/ folder is left behind, with $(ls -A "$sharded/locks" | wc -l) part claim(s)" >&2
+  exit 1
+fi
+[ ! -e "$sharded/.gfcal-run.lock" ] || { echo "slurm.sh: the run's lock file is left behind" >&2; exit 1; }
 echo "slurm: install $((t_installed - t0)) s, cluster start $((t_started - t_installed)) s, job array $((t_ran - t_started)) s"
