@@ -11,7 +11,7 @@ use gfcal::config::array::load_recording_array;
 use gfcal::selfcal::calibrate::{CalibrateError, CalibrateSettings, Calibration, calibrate as run_calibration};
 use gfcal::selfcal::fit::{FitError, FitSettings};
 use gfcal::selfcal::model::PER_ACCEL;
-use gfcal::selfcal::predict::{HeldOut, predict};
+use gfcal::selfcal::predict::{HeldOut, Refit, check_predictable, predict_as_fitted};
 use gfcal::selfcal::recording::{Recording, RecordingError};
 use gfcal::selfcal::segment::DetectorSettings;
 
@@ -73,12 +73,14 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
     check_settings(&a)?;
     let array = load_recording_array(a.array).map_err(InputError::Config)?;
     let rec = Recording::read(a.recording, &array).map_err(recording_error)?;
-    // Held-out recordings are read before any work, so a bad one stops the run at once.
+    // Held-out recordings are read and checked before any work, so a bad one stops the run at once.
     let mut held = Vec::new();
     for path in a.held_out {
         let other = Recording::read(path, &array)
             .map_err(|e| InputError::Other(format!("held-out recording for {}: {e}", a.recording.display())))?;
         rec.same_array_as(&other).map_err(recording_error)?;
+        check_predictable(&other, &a.detector)
+            .map_err(|e| InputError::Other(format!("held-out recording for {}: {e}", a.recording.display())))?;
         held.push(other);
     }
     let settings = CalibrateSettings {
@@ -100,7 +102,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
     }
     let mut held_results = Vec::new();
     for other in &held {
-        let h = predict(&array.array, &cal.fit.params, other, &settings.detector, a.gravity_m_s2)
+        let (h, _) = predict_as_fitted(&array.array, &cal, other, &settings.detector, a.gravity_m_s2, Refit::Pose)
             .map_err(recording_error)?;
         held_results.push((other.path.clone(), h));
     }
@@ -168,7 +170,7 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
     );
     let _ = writeln!(
         s,
-        "static: chi2/dof {:.2}, residual RMS {:.3e} m/s^2; dynamic: {} outputs clipped and left out, {} samples dropped, residual RMS {:.3e} m/s^2, chi2/dof {:.1}",
+        "static: chi2/dof {:.2}, residual RMS {:.3e} m/s^2; dynamic: {} outputs clipped and left out, {} samples dropped, residual RMS {:.3e} m/s^2, rotation-phase chi2/dof {:.1}",
         fit.static_chi2_dof,
         fit.static_residual_rms_m_s2,
         cal.clipped_outputs,
@@ -277,13 +279,14 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
     for (p, h) in held {
         let _ = writeln!(
             s,
-            "held out {}: static residual RMS {:.3e} m/s^2 (noise {:.3e}, chi2/dof {:.1}); dynamic residual RMS {:.3e} m/s^2 (noise {:.3e})",
+            "held out {}: static residual RMS {:.3e} m/s^2 (noise {:.3e}, chi2/dof {:.1}); dynamic residual RMS {:.3e} m/s^2 (noise {:.3e}, rotation-phase chi2/dof {:.1})",
             p.display(),
             h.static_residual_rms_m_s2,
             h.static_noise_rms_m_s2,
             h.static_chi2_dof,
             h.dynamic_residual_rms_m_s2,
-            h.dynamic_noise_rms_m_s2
+            h.dynamic_noise_rms_m_s2,
+            h.dynamic_chi2_dof
         );
     }
     let _ = writeln!(s, "assessment:");

@@ -234,14 +234,16 @@ pub fn diagnose_recordings(
     let path = table.path.as_path();
     let array = gfcal::config::array::load_recording_array(array_path).map_err(InputError::Config)?;
     let rec = Recording::from_table(table, &array).map_err(|e| InputError::Other(e.to_string()))?;
+    let settings = CalibrateSettings { use_gyro, ..CalibrateSettings::default() };
     let mut others = Vec::new();
     for other in held_out {
         let o = Recording::read(other, &array)
             .map_err(|e| InputError::Other(format!("held-out recording for {}: {e}", path.display())))?;
         rec.same_array_as(&o).map_err(|e| InputError::Other(e.to_string()))?;
+        gfcal::selfcal::predict::check_predictable(&o, &settings.detector)
+            .map_err(|e| InputError::Other(format!("held-out recording for {}: {e}", path.display())))?;
         others.push(o);
     }
-    let settings = CalibrateSettings { use_gyro, ..CalibrateSettings::default() };
     let d = diagnose_recordings(&rec, &array, &others, &settings, alpha).map_err(|e| -> anyhow::Error {
         match e {
             RecordedError::Calibrate(e) => super::calibrate::calibrate_error(e, &rec, &array, &settings.detector),
@@ -250,13 +252,13 @@ pub fn diagnose_recordings(
     })?;
     let show = |g: &Gap| {
         format!(
-            "static chi2/dof {:.3}, dynamic {}",
+            "static chi2/dof {:.3}, rotation-phase chi2/dof {}",
             g.static_chi2_dof,
             g.dynamic.map(|v| format!("{v:.1}")).unwrap_or_else(|| "- (no rotation phase)".into())
         )
     };
     println!(
-        "recording {}: {} static interval(s), {} dynamic sample(s); the gap (1 is noise alone; dynamic: (residual RMS / static noise RMS)^2)",
+        "recording {}: {} static interval(s), {} dynamic sample(s); the gap (1 is noise alone; the rotation-phase chi2/dof is the one gfcal calibrate prints)",
         path.display(),
         d.calibration.static_data.means.nrows(),
         d.calibration.dynamic_index.len()
@@ -309,17 +311,12 @@ pub fn diagnose_recordings(
     for r in &d.ranks {
         println!("  {:<26} {:>3} parameter(s), {:>3} unseen", r.name, r.parameters, r.unseen);
     }
-    println!("\nsensing points inside each package (location of each axis minus the first axis's, mm):");
+    println!(
+        "\nsensing points inside each package (location error of each further axis minus the package's first, array axes, mm):"
+    );
     for sp in &d.sensing_points {
-        let v: Vec<String> =
-            sp.difference_m.iter().zip(&sp.sigma_m).map(|(v, s)| format!("{:.2}+-{:.2}", v * 1e3, s * 1e3)).collect();
-        println!(
-            "  package {} (accelerometers {:?}): p = {:.1e}: {}",
-            sp.package + 1,
-            sp.accelerometers.iter().map(|j| j + 1).collect::<Vec<_>>(),
-            sp.p_value,
-            v.join(" ")
-        );
+        let v: Vec<String> = sp.offsets().iter().map(|o| o.describe_mm()).collect();
+        println!("  package {}: p = {:.1e}: {}", sp.package + 1, sp.p_value, v.join("; "));
     }
     match d.explanation() {
         Explanation::Partial => println!(
@@ -328,6 +325,10 @@ pub fn diagnose_recordings(
         Explanation::Unexplained => println!("\nunexplained: the gap is above the noise and nothing tried lowers it"),
         Explanation::Complete => println!("\nthe named effects explain the gap to the noise"),
         Explanation::NothingToExplain => println!("\nthe baseline explains the recordings to the noise"),
+    }
+    println!("\nassessment of the fitting recording's calibration:");
+    for v in d.assessment() {
+        println!("  {}: {}", v.kind, v.reason);
     }
     let body = match json {
         Some(_) => {

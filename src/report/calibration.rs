@@ -82,7 +82,7 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
 
     page.heading(2, "Residuals against the noise");
     page.text(&format!(
-        "Static: chi2/dof {:.2}, residual RMS {} m/s^2 (sigmas widened by sqrt({:.2})). Dynamic: residual RMS by accelerometer below, chi2/dof against the static noise {:.1}.",
+        "Static: chi2/dof {:.2}, residual RMS {} m/s^2 (sigmas widened by sqrt({:.2})). Dynamic: residual RMS by accelerometer below, rotation-phase chi2/dof {:.1} (against the static noise).",
         fit.static_chi2_dof,
         significant(fit.static_residual_rms_m_s2, 3),
         fit.static_variance_factor,

@@ -162,8 +162,8 @@ pub fn recorded_report(
     let mut page = Page::new(&format!("gfcal diagnose: {}", rec.path.display()));
     page.text(&format!(
         "Array {} ({} accelerometers), rate from {}. {} static interval(s), {} dynamic sample(s). The gap: static \
-         chi2/dof of the interval means, and (dynamic residual RMS / static noise RMS)^2 of the rotation phase; 1 is \
-         noise alone. Effects are named at the familywise level {} only if they lower the gap on every held-out recording.",
+         chi2/dof of the interval means, and the rotation-phase chi2/dof (the residuals against the static noise, per \
+         degree of freedom left by each sample's motion: the number gfcal calibrate prints); 1 is noise alone. Effects are named at the familywise level {} only if they lower the gap on every held-out recording.",
         array.path.display(),
         array.array.len(),
         if d.calibration.use_gyro { "the reference gyroscopes" } else { "the accelerometers (gyroscope-free)" },
@@ -188,7 +188,7 @@ pub fn recorded_report(
             push(who.clone(), &format!("+ {name}"), g);
         }
     }
-    page.table(&["recording", "model", "static chi2/dof", "dynamic gap"], &rows);
+    page.table(&["recording", "model", "static chi2/dof", "rotation-phase chi2/dof"], &rows);
     page.heading(2, "Effects named");
     let rows: Vec<(Vec<String>, bool)> = d
         .findings
@@ -244,25 +244,23 @@ pub fn recorded_report(
         .sensing_points
         .iter()
         .map(|sp| {
-            let diffs: Vec<String> = sp
-                .difference_m
-                .chunks(3)
-                .zip(sp.sigma_m.chunks(3))
-                .map(|(v, s)| {
-                    format!(
-                        "({})",
-                        v.iter()
-                            .zip(s)
-                            .map(|(v, s)| format!("{:.1} +- {:.1}", v * 1e3, s * 1e3))
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    )
-                })
-                .collect();
-            (vec![(sp.package + 1).to_string(), diffs.join(" "), format!("{:.1e}", sp.p_value)], false)
+            let diffs: Vec<String> = sp.offsets().iter().map(|o| o.describe_mm()).collect();
+            (vec![(sp.package + 1).to_string(), diffs.join("; "), format!("{:.1e}", sp.p_value)], false)
         })
         .collect();
-    page.table(&["package", "location of each further axis minus the first's (mm)", "p"], &rows);
+    page.table(
+        &["package", "location error of each further axis minus the package's first (array axes, mm)", "p"],
+        &rows,
+    );
+    page.heading(2, "Assessment: what to trust in the fitting recording's calibration");
+    let rows: Vec<(Vec<String>, bool)> = d
+        .assessment()
+        .into_iter()
+        .map(|v| {
+            (vec![v.kind.to_string(), if v.trustworthy { "yes" } else { "no" }.to_string(), v.reason], !v.trustworthy)
+        })
+        .collect();
+    page.table(&["kind", "trustworthy", "why"], &rows);
     let fig = residual_figure(d, rec, array, gravity_m_s2)?;
     page.heading(2, "Residuals");
     page.figure(&fig, None);

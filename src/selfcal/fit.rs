@@ -25,6 +25,7 @@ use nalgebra::{DMatrix, DVector, SMatrix, Vector3};
 use rayon::prelude::*;
 
 use super::data::{DynamicData, StaticData};
+use super::misfit;
 use super::model::{Gauge, PER_ACCEL, SampleMotion, Sensor, SensorSet, sensors};
 use super::motion::{self, SampleData};
 use super::track;
@@ -269,10 +270,10 @@ pub fn fit_from(
         weights.static_w =
             DMatrix::from_fn(poses, n, |p, j| stat.counts[p] as f64 / (stat.sigma[j].powi(2) * static_factor));
         if let Some(d) = dynamic.filter(|_| with_dynamic) {
-            let (rms, _) = dynamic_residuals(array, d, &state);
-            let local = if reference_rate { 6.0 } else { 9.0 } + d.extra_unknowns_per_sample as f64;
+            let (rms, _) = misfit::residual_rms(array, &state.params, d, &state.motion);
+            let local = misfit::local_unknowns(d);
             for j in 0..n {
-                let leverage = dynamic_leverage(d, j, local);
+                let leverage = misfit::leverage(d, j, local);
                 let var = rms[j].powi(2) * leverage;
                 let var = var.max(stat.sigma[j].powi(2));
                 let w = 1.0 / var;
@@ -311,16 +312,9 @@ pub fn fit_from(
     let static_residual_rms_m_s2 = static_rms(array, stat, &state, settings);
     let (dyn_rms, dyn_chi2_dof) = match dynamic.filter(|_| with_dynamic) {
         Some(d) => {
-            let (rms, _) = dynamic_residuals(array, d, &state);
-            let local = if reference_rate { 6.0 } else { 9.0 } + d.extra_unknowns_per_sample as f64;
-            let mut num = 0.0;
-            let mut den = 0.0;
-            for j in 0..n {
-                let count = (0..d.samples()).filter(|&i| d.used[i * n + j]).count() as f64;
-                num += rms[j].powi(2) * count / stat.sigma[j].powi(2);
-                den += count / dynamic_leverage(d, j, local);
-            }
-            (rms, num / den)
+            let (rms, _) = misfit::residual_rms(array, &state.params, d, &state.motion);
+            let chi2_dof = misfit::chi2_dof(d, &rms, &stat.sigma);
+            (rms, chi2_dof)
         }
         None => (vec![f64::NAN; n], f64::NAN),
     };
@@ -386,22 +380,6 @@ fn fit_start(
     if let Some(d) = dynamic.filter(|_| with_dynamic) {
         state.motion = track::from_scratch(array, d, &weights.dynamic_w, &state.params);
     }
-}
-
-/// `n_j / (n_j - leverage_j)` for accelerometer j: the factor from the residual mean square to
-/// the noise variance when each sample spends `local` degrees of freedom evenly over its outputs.
-fn dynamic_leverage(d: &DynamicData, j: usize, local: f64) -> f64 {
-    let n = d.outputs.ncols();
-    let mut count = 0.0;
-    let mut lev = 0.0;
-    for i in 0..d.samples() {
-        if d.used[i * n + j] {
-            let m = (0..n).filter(|&k| d.used[i * n + k]).count() as f64;
-            count += 1.0;
-            lev += local / m;
-        }
-    }
-    if count > lev { count / (count - lev) } else { f64::INFINITY }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -834,24 +812,6 @@ fn static_rms(array: &Array, stat: &StaticData, state: &State, settings: &FitSet
         }
     }
     (s / c).sqrt()
-}
-
-/// Per accelerometer: residual RMS of the used dynamic samples, and their count.
-fn dynamic_residuals(array: &Array, d: &DynamicData, state: &State) -> (Vec<f64>, Vec<usize>) {
-    let sens = sensors(array, &state.params);
-    let n = array.len();
-    let mut s = vec![0.0; n];
-    let mut c = vec![0usize; n];
-    for i in 0..d.samples() {
-        let m = &state.motion[i];
-        for (j, sn) in sens.iter().enumerate() {
-            if d.used[i * n + j] {
-                s[j] += (d.outputs[(i, j)] - sn.output(&m.specific_force_m_s2(&sn.position_m))).powi(2);
-                c[j] += 1;
-            }
-        }
-    }
-    ((0..n).map(|j| if c[j] > 0 { (s[j] / c[j] as f64).sqrt() } else { f64::NAN }).collect(), c)
 }
 
 /// The Cramer-Rao bound in the gauge at a known state: the constrained inverse of the Fisher

@@ -12,6 +12,7 @@
 //! - [`data`]: the two phases' data, shared by the estimator, the tracker and the prediction;
 //! - [`fit`]: the joint estimator and its covariance; [`unseen`]: what it cannot see beyond the
 //!   gauge; [`geometry`]: what an array's geometry cannot see, on synthetic data;
+//! - [`misfit`]: the rotation phase's chi^2/dof, one metric for calibrate and diagnose;
 //! - [`calibrate`]: the workflow; [`output`]: its JSON; [`assessment`]: what to trust in it.
 
 pub mod assessment;
@@ -20,6 +21,7 @@ pub mod clock;
 pub mod data;
 pub mod fit;
 pub mod geometry;
+pub mod misfit;
 pub mod model;
 pub mod motion;
 pub mod output;

@@ -28,14 +28,9 @@ pub struct HeldOut {
     /// RMS of the dynamic residuals, m/s^2, against the per-sample static noise RMS.
     pub dynamic_residual_rms_m_s2: f64,
     pub dynamic_noise_rms_m_s2: f64,
-}
-
-impl HeldOut {
-    /// The dynamic misfit against the static noise: `(residual RMS / noise RMS)^2` (NaN without
-    /// a dynamic phase).
-    pub fn dynamic_chi2_dof(&self) -> f64 {
-        (self.dynamic_residual_rms_m_s2 / self.dynamic_noise_rms_m_s2).powi(2)
-    }
+    /// The rotation-phase chi^2/dof with the motion tracked there ([`super::misfit`]: the same
+    /// metric as `calibrate`'s); NaN without a rotation phase.
+    pub dynamic_chi2_dof: f64,
 }
 
 /// What a held-out recording refits besides the motion.
@@ -59,6 +54,32 @@ pub fn predict(
     gravity_m_s2: f64,
 ) -> Result<HeldOut, super::recording::RecordingError> {
     predict_refitting(array, params, rec, detector, gravity_m_s2, Refit::Pose)
+}
+
+/// Whether `rec` can be predicted: it segments, and no output of a static interval is at its range.
+/// The commands check their held-out recordings so before any fit, so that a bad one is refused
+/// at once rather than after the calibration.
+pub fn check_predictable(rec: &Recording, detector: &DetectorSettings) -> Result<(), super::recording::RecordingError> {
+    let seg = segment(rec, detector)?;
+    static_data(rec, &seg.static_intervals)
+        .map(|_| ())
+        .map_err(|problem| super::recording::RecordingError::Unusable { path: rec.path.clone(), problem })
+}
+
+/// Predicts `rec` as `cal` was fitted: its parameters, the motion of every sample tracked with
+/// its per-accelerometer weights and (with `--use-gyro`) the rate from the gyroscopes; refitting
+/// what `refit` says. The held-out predictions of `calibrate` and `diagnose` are these, so that
+/// their rotation-phase chi^2/dof is the fitting recording's metric measured alike.
+pub fn predict_as_fitted(
+    array: &Array,
+    cal: &super::calibrate::Calibration,
+    rec: &Recording,
+    detector: &DetectorSettings,
+    gravity_m_s2: f64,
+    refit: Refit,
+) -> Result<(HeldOut, HeldOutState), super::recording::RecordingError> {
+    let dynamic_w: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    predict_with_state(array, &cal.fit.params, rec, detector, gravity_m_s2, refit, Some(&dynamic_w), cal.use_gyro)
 }
 
 /// Predicts `rec` with `params`, refitting what `refit` says.
@@ -179,6 +200,13 @@ pub fn predict_with_state(
         Some(d) => dynamic_residual(array, &params, d, &motion, &stat.sigma),
         None => (f64::NAN, f64::NAN, 0),
     };
+    let dyn_chi2_dof = match prepared.data.as_ref() {
+        Some(d) if d.samples() > 0 => {
+            let (rms, _) = super::misfit::residual_rms(array, &params, d, &motion);
+            super::misfit::chi2_dof(d, &rms, &stat.sigma)
+        }
+        _ => f64::NAN,
+    };
     let static_t_s = seg.static_intervals.iter().map(|iv| rec.t_s[(iv.start + iv.end) / 2]).collect();
     let t_mid_s = match (rec.t_s.first(), rec.t_s.last()) {
         (Some(a), Some(b)) => 0.5 * (a + b),
@@ -192,6 +220,7 @@ pub fn predict_with_state(
         dynamic_samples: dyn_samples,
         dynamic_residual_rms_m_s2: dyn_rms,
         dynamic_noise_rms_m_s2: dyn_noise,
+        dynamic_chi2_dof: dyn_chi2_dof,
     };
     let state = HeldOutState { params, stat, static_t_s, up, dynamic: prepared.data, motion, t_mid_s };
     Ok((held, state))

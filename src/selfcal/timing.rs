@@ -351,7 +351,9 @@ impl ClockProblem {
         use rayon::prelude::*;
         let none = self.cost_without_timing().max(1e-300);
         let at = |shift: f64| -> f64 {
-            let cost: f64 = (0..self.samples())
+            // Collected, then summed in sample order: rayon's `sum` groups the additions as its
+            // threads split the work, so the last bits would depend on the machine's load.
+            let costs: Vec<f64> = (0..self.samples())
                 .into_par_iter()
                 .map_init(
                     || vec![0.0; clocks.len()],
@@ -360,7 +362,8 @@ impl ClockProblem {
                         self.sample_fit(i, tau).1
                     },
                 )
-                .sum();
+                .collect();
+            let cost: f64 = costs.iter().sum();
             1.0 - cost / none
         };
         (at(0.0), shifts_s.iter().map(|&s| at(s)).collect())
@@ -416,12 +419,19 @@ impl ClockProblem {
         let (mut cost, mut u) = self.cost(&current, rows.clone());
         let mut normal = DMatrix::zeros(dim, dim);
         for _ in 0..steps {
-            let (h, g) = rows
-                .clone()
+            // Normal equations summed over fixed chunks of samples, the chunks then added in order:
+            // the same bits on any number of threads and under any load (rayon's fold/reduce
+            // groups the sums as its threads split the work).
+            const CHUNK: usize = 256;
+            let chunks = rows.len().div_ceil(CHUNK);
+            let chunk_sums: Vec<(DMatrix<f64>, DVector<f64>)> = (0..chunks)
                 .into_par_iter()
-                .fold(
-                    || (DMatrix::<f64>::zeros(dim, dim), DVector::<f64>::zeros(dim), vec![0.0; clocks.len()]),
-                    |(mut h, mut g, mut tau), i| {
+                .map(|k| {
+                    let mut h = DMatrix::<f64>::zeros(dim, dim);
+                    let mut g = DVector::<f64>::zeros(dim);
+                    let mut tau = vec![0.0; clocks.len()];
+                    let start = rows.start + k * CHUNK;
+                    for i in start..(start + CHUNK).min(rows.end) {
                         relative_ages(&current, self.t_s[i], &mut tau);
                         let ui = &u[i - rows.start];
                         // the package-level row: d r_j / d c_p = gain_j (delta(p, p_j) - 1/P) d age_p / d c_p
@@ -454,12 +464,16 @@ impl ClockProblem {
                                 }
                             }
                         }
-                        (h, g, tau)
-                    },
-                )
-                .map(|(h, g, _)| (h, g))
-                .reduce(|| (DMatrix::zeros(dim, dim), DVector::zeros(dim)), |a, b| (a.0 + b.0, a.1 + b.1));
-            let mut h = h;
+                    }
+                    (h, g)
+                })
+                .collect();
+            let mut h = DMatrix::<f64>::zeros(dim, dim);
+            let mut g = DVector::<f64>::zeros(dim);
+            for (hk, gk) in &chunk_sums {
+                h += hk;
+                g += gk;
+            }
             for a in 0..dim {
                 for b in 0..a {
                     h[(a, b)] = h[(b, a)];

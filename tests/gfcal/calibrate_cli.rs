@@ -199,7 +199,9 @@ fn a_held_out_recording_of_another_array_is_refused_naming_both_files() {
 /// An array file whose range is below what a board at rest reads (accelerometer 1 at 5 m/s^2: its static
 /// means near +-9.8 would be means of clipped outputs, read as measured): refused at the first such output,
 /// naming the recording, the row, the static interval, the key and the array file, before any fit; the same
-/// for a held-out recording in `diagnose` (pushed past its rail by `inject`). The six recordings with the shipped array file have none.
+/// for a held-out recording in `diagnose` (pushed past its rail by `inject`), refused before the fitting
+/// recording is calibrated (it was refused after a minute's fit before). The six recordings with the shipped
+/// array file have none.
 #[test]
 fn an_output_at_its_range_inside_a_static_interval_is_refused() {
     let dir = tempfile::tempdir().unwrap();

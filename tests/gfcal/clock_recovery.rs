@@ -155,3 +155,41 @@ fn the_diagnosis_names_sample_clock_with_the_clocks_and_nothing_without() {
     let why = why.expect("the reason it is not named");
     assert!(why.contains("no sawtooth"), "{why}");
 }
+
+/// A run is a function of its input: one simulated recording with its clocks calibrated on one
+/// thread and on two gives the same bits (clocks, sigmas, parameters, misfits). It failed while the
+/// clock fit's normal equations were summed by rayon's fold/reduce, whose grouping of the sums
+/// follows how the threads split the work (1 ulp on real recording 1 in a busy test harness; now
+/// fixed chunks summed in order, `selfcal::timing`).
+#[test]
+fn a_clocked_calibration_has_the_same_bits_on_one_thread_and_on_two() {
+    let mut cell = short_matched(30.0);
+    cell.protocol.poses = 6;
+    let array = &cell.array;
+    let truth = config_truth(array, 7);
+    let sim = simulate(array, &truth, &cell.protocol, &mut trial_rng(7, 1)).expect("simulated");
+    let on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a pool");
+        pool.install(|| calibrate(&sim.recording, array, &CalibrateSettings::default()).expect("calibrates"))
+    };
+    let (one, two) = (on(1), on(2));
+    let bits = |cal: &gfcal::selfcal::calibrate::Calibration| -> Vec<u64> {
+        let c = cal.clocks.as_ref().expect("clocks fitted");
+        let mut v: Vec<f64> = vec![cal.fit.dynamic_chi2_dof, cal.fit.static_chi2_dof, c.residual_rms_after_m_s2];
+        for (clock, sigma) in c.clocks.iter().zip(&c.sigma) {
+            if let (Some(k), Some(s)) = (clock, sigma) {
+                v.extend([k.rate_offset, k.drift_per_s, k.age_s(k.t_ref_s)]);
+                v.extend(s.iter().copied());
+            }
+        }
+        let n = cal.fit.params.len();
+        for j in 0..n {
+            for p in 0..PER_ACCEL {
+                v.extend([cal.fit.params.get(j, p), cal.fit.sigma(j, p)]);
+            }
+        }
+        v.iter().map(|x| x.to_bits()).collect()
+    };
+    assert_eq!(one.fit.iterations, two.fit.iterations);
+    assert_eq!(bits(&one), bits(&two));
+}

@@ -363,6 +363,7 @@ mod diagnosis {
     /// on accelerometer 3 halfway through the log, as after a shock) gets no sigma-less finding, a
     /// held-out error that is a number or absent, and is reported as a partial explanation.
     #[test]
+    #[ignore = "slow: about 4 minutes (one diagnosis whose forward selection never closes the gap, each round cross-validated); run with --ignored (docs/testing.md)"]
     fn an_effect_outside_the_library_is_reported_as_a_partial_explanation() {
         let cfg = example();
         let mut log = simulate(&cfg, &[], white(50.0), None, 15);

@@ -357,6 +357,7 @@ fn a_common_accelerometer_delay_made_at_1_khz_reads_whole_in_use_gyro_mode() {
 /// true delay whole on fast motion, and `inject`'s delay is faithful only on motion below about a quarter of the
 /// sample rate. Asserted: (a) at both bands and (b) at 12 Hz, within 3 sigma; (b) at 25 Hz below half the delay.
 #[test]
+#[ignore = "slow: about a minute (four simulated recordings at two motion bands, diagnosed); run with --ignored (docs/testing.md)"]
 fn a_true_common_delay_reads_whole_on_fast_motion_and_an_injected_one_only_below_a_quarter_of_the_sample_rate() {
     use gfcal::io::table::Table;
     let array = mimu_array();

@@ -6,10 +6,12 @@
 //! **The gap.** Static phase: chi-square per degree of freedom of the interval means against the
 //! pooled within-interval noise, with the pose directions (and whatever a named per-recording
 //! effect says) refitted; on the fitting recording, the fit's own chi-square per degree of freedom.
-//! Dynamic phase: `(residual RMS / static noise RMS)^2` of every unclipped output, with the motion
-//! of every sample tracked with the model's parameters, on the fitting and the held-out
-//! recordings alike; about 1 for a model that explains the rotation phase as well as the noise. A
-//! gap above [`GAP_ABOVE_NOISE`] is more than the noise.
+//! Rotation phase: the rotation-phase chi^2/dof of [`crate::selfcal::misfit`], the metric
+//! `calibrate` prints, with the motion of every sample tracked with the model's parameters and
+//! the calibration's weights on the held-out recordings; on the fitting recording, the fit's own
+//! (before the sample clocks: the motion tracked again on the outputs as recorded). 1 for a model
+//! that explains the rotation phase as well as the noise. A gap above [`GAP_ABOVE_NOISE`] is more
+//! than the noise.
 //!
 //! **Held-out scoring.** The calibration of the fitting recording is applied to each held-out
 //! recording with only what must differ between recordings refitted there: the pose directions,
@@ -46,7 +48,7 @@ use crate::selfcal::calibrate::{
 };
 use crate::selfcal::clock::SampleClock;
 use crate::selfcal::model::{PER_ACCEL, sensors};
-use crate::selfcal::predict::{HeldOut, HeldOutState, Refit, predict_refitting, predict_with_state};
+use crate::selfcal::predict::{HeldOut, HeldOutState, Refit, predict_as_fitted, predict_with_state};
 use crate::selfcal::recording::Recording;
 use crate::selfcal::timing::{ClockProblem, relative_rates};
 
@@ -65,24 +67,31 @@ pub fn diagnose_recordings(
     let fit = &calibration.fit;
     let n = array.array.len();
     let g = settings.fit.gravity_m_s2;
-    // The fitting recording's static gap is the fit's own (its degrees of freedom count every
-    // fitted parameter); its dynamic gap is measured as on a held-out recording (the motion
-    // tracked again with the fitted parameters), so that the two are the same quantity.
-    let own = predict_refitting(&array.array, &fit.params, fitting, &settings.detector, g, Refit::Pose)?;
+    // Every recording's motion is tracked as the calibration tracked the fitting one: with its
+    // per-accelerometer weights, and with the rate from the gyroscopes under --use-gyro.
+    let dynamic_w: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    let predict = |rec: &Recording, refit: Refit| {
+        predict_as_fitted(&array.array, &calibration, rec, &settings.detector, g, refit)
+    };
+    // The fitting recording's gap is the fit's own, the numbers `calibrate` prints: static and
+    // rotation-phase chi^2/dof (`selfcal::misfit`). With the sample clocks fitted, the fit's
+    // rotation phase is after them: the gap before them is the same metric with the motion
+    // tracked again on the outputs as recorded.
+    let (own, _) = predict(fitting, Refit::Pose)?;
+    let clocked = calibration.clocks.is_some();
     let fitting_gap = Gap {
         static_chi2_dof: fit.static_chi2_dof,
-        dynamic: (!fit.motion.is_empty()).then(|| own.dynamic_chi2_dof()).filter(|v| v.is_finite()),
+        dynamic: (!fit.motion.is_empty())
+            .then_some(if clocked { own.dynamic_chi2_dof } else { fit.dynamic_chi2_dof })
+            .filter(|v| v.is_finite()),
     };
     let mut scores = Vec::with_capacity(held_out.len());
     let mut scaled_gaps = Vec::with_capacity(held_out.len());
     for other in held_out {
-        let before = predict_refitting(&array.array, &fit.params, other, &settings.detector, g, Refit::Pose)?;
-        let refitted = |refit: Refit| {
-            predict_with_state(&array.array, &fit.params, other, &settings.detector, g, refit, None, false)
-        };
-        let (after, after_state) = refitted(Refit::PoseAndBias)?;
-        let (scaled, scaled_state) = refitted(Refit::PoseBiasAndScale)?;
-        let gap = |h: &HeldOut| Gap { static_chi2_dof: h.static_chi2_dof, dynamic: finite(h.dynamic_chi2_dof()) };
+        let (before, _) = predict(other, Refit::Pose)?;
+        let (after, after_state) = predict(other, Refit::PoseAndBias)?;
+        let (scaled, scaled_state) = predict(other, Refit::PoseBiasAndScale)?;
+        let gap = |h: &HeldOut| Gap { static_chi2_dof: h.static_chi2_dof, dynamic: finite(h.dynamic_chi2_dof) };
         let (gap_before, gap_after) = (gap(&before), gap(&after));
         scaled_gaps.push(gap(&scaled));
         let bias = refitted_columns(Nuisance::Bias, n);
@@ -184,7 +193,6 @@ pub fn diagnose_recordings(
         }
     }
     let noise_rms_m_s2 = own.dynamic_noise_rms_m_s2;
-    let dynamic_w: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
     let held_out_shares = sample_clock_test(
         &calibration,
         fitting,
@@ -197,15 +205,16 @@ pub fn diagnose_recordings(
         &mut findings,
         &mut not_named,
     )?;
-    // With the clocks named, the gaps after them: on the fitting recording its dynamic gap scaled
-    // by the calibration's dynamic residual variance with the clocks over without; on each
-    // held-out recording, by the share of its rotation phase's misfit that the timing model
-    // removes with the clocks predicted from this recording (see `sample_clock_test`).
+    // With the clocks named, the gaps after them: on the fitting recording the fit's own (with the
+    // clocks); on each held-out recording, its gap scaled by the share of its rotation phase's
+    // misfit that the timing model removes with the clocks predicted from this recording (see
+    // `sample_clock_test`; the timing model's own unknowns are not taken from its degrees of
+    // freedom there, so the held-out gap after the clocks is a little optimistic).
     let mut fitting_after_clock = Vec::new();
     let mut library_gap = fitting_gap;
-    if let (true, Some(c)) = (findings.iter().any(|f| f.name == "sample_clock"), &calibration.clocks) {
-        let ratio = (c.residual_rms_after_m_s2 / c.residual_rms_before_m_s2).powi(2);
-        library_gap = Gap { dynamic: fitting_gap.dynamic.map(|g| g * ratio), ..fitting_gap };
+    if findings.iter().any(|f| f.name == "sample_clock") && calibration.clocks.is_some() {
+        // After the clocks: the fit's own rotation-phase chi^2/dof (what calibrate prints).
+        library_gap = Gap { dynamic: fitting_gap.dynamic.map(|_| fit.dynamic_chi2_dof), ..fitting_gap };
         fitting_after_clock.push(("sample_clock".to_string(), library_gap));
         for (s, share) in scores.iter_mut().zip(&held_out_shares) {
             if let Some(share) = share {

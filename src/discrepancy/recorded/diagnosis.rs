@@ -101,6 +101,14 @@ pub struct RecordedDiagnosis {
 }
 
 impl RecordedDiagnosis {
+    /// What to trust in the fitting recording's calibration: `calibrate`'s verdicts
+    /// ([`crate::selfcal::assessment`]), with the held-out recordings' static gaps before any
+    /// named effect (the calibration carried over whole, as `calibrate --held-out` scores them).
+    pub fn assessment(&self) -> Vec<crate::selfcal::assessment::Verdict> {
+        let held: Vec<f64> = self.held_out.iter().map(|h| h.before.static_chi2_dof).collect();
+        crate::selfcal::assessment::assess(&self.calibration, &held)
+    }
+
     /// Whether the named effects explain the gap (to the noise) on the held-out recordings and on
     /// the fitting one, part of it, or nothing was named.
     pub fn explanation(&self) -> Explanation {

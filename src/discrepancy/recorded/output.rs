@@ -55,6 +55,12 @@ pub fn to_json(recording: &str, array: &str, d: &RecordedDiagnosis, alpha: f64) 
             "accelerometers": sp.accelerometers.iter().map(|j| j + 1).collect::<Vec<_>>(),
             "difference_m": sp.difference_m,
             "sigma_m": sp.sigma_m,
+            "offsets": sp.offsets().iter().map(|o| serde_json::json!({
+                "accelerometer": o.accelerometer + 1,
+                "minus": o.minus + 1,
+                "difference_m": {"x": o.difference_m[0], "y": o.difference_m[1], "z": o.difference_m[2]},
+                "sigma_m": {"x": o.sigma_m[0], "y": o.sigma_m[1], "z": o.sigma_m[2]},
+            })).collect::<Vec<_>>(),
             "p_value": sp.p_value,
         })).collect::<Vec<_>>(),
         "effects": d.findings.iter().map(|f| serde_json::json!({
@@ -69,6 +75,9 @@ pub fn to_json(recording: &str, array: &str, d: &RecordedDiagnosis, alpha: f64) 
         })).collect::<Vec<_>>(),
         "not_named": d.not_named.iter().map(|(n, w)| serde_json::json!({"name": n, "why": w})).collect::<Vec<_>>(),
         "explanation": d.explanation().as_str(),
+        "assessment": d.assessment().iter().map(|v| serde_json::json!({
+            "kind": v.kind, "trustworthy": v.trustworthy, "reason": v.reason,
+        })).collect::<Vec<_>>(),
         "alpha": alpha,
     })
 }

@@ -24,6 +24,47 @@ pub struct SensingPoint {
     pub p_value: f64,
 }
 
+/// One further axis of a package against the package's first: the difference of their location
+/// errors along the array's x, y and z axes, m, and its sigmas.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AxisOffset {
+    /// The further axis and the package's first (0-based accelerometers).
+    pub accelerometer: usize,
+    pub minus: usize,
+    pub difference_m: [f64; 3],
+    pub sigma_m: [f64; 3],
+}
+
+impl SensingPoint {
+    /// The differences, labelled: one per further axis of the package.
+    pub fn offsets(&self) -> Vec<AxisOffset> {
+        let first = self.accelerometers[0];
+        self.accelerometers
+            .iter()
+            .skip(1)
+            .enumerate()
+            .map(|(i, &j)| AxisOffset {
+                accelerometer: j,
+                minus: first,
+                difference_m: [self.difference_m[3 * i], self.difference_m[3 * i + 1], self.difference_m[3 * i + 2]],
+                sigma_m: [self.sigma_m[3 * i], self.sigma_m[3 * i + 1], self.sigma_m[3 * i + 2]],
+            })
+            .collect()
+    }
+}
+
+impl AxisOffset {
+    /// `a14 - a13: x 1.20 +- 0.30, y ..., z ... mm` (accelerometers 1-based, array axes).
+    pub fn describe_mm(&self) -> String {
+        let parts: Vec<String> = ["x", "y", "z"]
+            .iter()
+            .zip(self.difference_m.iter().zip(&self.sigma_m))
+            .map(|(axis, (v, s))| format!("{axis} {:.2} +- {:.2}", v * 1e3, s * 1e3))
+            .collect();
+        format!("a{} - a{}: {} mm", self.accelerometer + 1, self.minus + 1, parts.join(", "))
+    }
+}
+
 /// Tests every package with more than one axis. `total` is the fitting recording's accumulation
 /// with the baseline as its first `PER_ACCEL n` columns.
 pub fn sensing_points(total: &Accumulated, layout: &EffectLayout, params: &SensorSet) -> Vec<SensingPoint> {
