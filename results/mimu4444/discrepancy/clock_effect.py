@@ -1,8 +1,9 @@
 """The sample clocks' effect on the six diagnoses (issue 28, items 4 and 5): Python's standard library only.
 
-Before: no_clocks/diagnose[_gyro]_K.json, the diagnoses of run.sh made before the array file declared the packages'
-clocks (an array without clocks is diagnosed bit for bit as then). After: diagnose[_gyro]_K.json from run.sh and
-run_gyro.sh with configs/arrays/mimu4444_corners.toml as it is.
+The gaps, before and after the clocks: diagnose[_gyro]_K.json from run.sh and run_gyro.sh with
+configs/arrays/mimu4444_corners.toml as it is. The rank tests' sigmas before: no_clocks/diagnose[_gyro]_K.json,
+the diagnoses made before the array file declared the packages' clocks (their gaps are in the metric used before
+issue 30, (residual RMS / static noise RMS)^2, and are not read).
 
     python3 results/mimu4444/discrepancy/clock_effect.py results/mimu4444/discrepancy > results/mimu4444/discrepancy/clock_effect.md
 """
@@ -38,12 +39,14 @@ def fmt(x, digits=1):
 def main(folder):
     folder = Path(folder)
     print("# The sample clocks in the six diagnoses, both modes\n")
-    print("Each recording in turn is the fitting one, the other five held out. Dynamic gap: (residual RMS / static")
-    print("noise RMS)^2. `before`: the diagnosis without the clocks (no_clocks/); `after clocks`: the gap after")
-    print("`sample_clock` (fitting: scaled by the calibration's residual variance with/without the clocks; held out:")
-    print("by the share the fitting recording's relative rates remove there, phases from their own gyroscopes).")
-    print("Sigma columns: RMS over the effect's parameters of its rank test's sigma, before -> after.\n")
-    print("| recording | mode | sample_clock | fitting dynamic gap | held-out dynamic gap (mean) | quadratic SF sigma | cross-coupling sigma | explanation |")
+    print("Each recording in turn is the fitting one, the other five held out. Gap: the rotation-phase chi2/dof")
+    print("(src/selfcal/misfit.rs, the number `gfcal calibrate` prints; 1 is the noise alone), before -> after")
+    print("`sample_clock`, both from the diagnosis with the clocks: fitting recording, before: the motion tracked")
+    print("again on the outputs as recorded; after: the calibration's own with the clocks. Held out: before, the")
+    print("calibration carried over; after, scaled by the share the fitting recording's relative rates remove there")
+    print("(phases from their own gyroscopes). Sigma columns: RMS over the effect's parameters of its rank test's")
+    print("sigma, without the clocks (no_clocks/) -> with them.\n")
+    print("| recording | mode | sample_clock | fitting rotation-phase chi2/dof | held-out rotation-phase chi2/dof (mean) | quadratic SF sigma | cross-coupling sigma | explanation |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     ratios = {"scale_factor_quadratic": [], "cross_coupling": []}
     for mode, stem in (("gyro-free", "diagnose_"), ("use-gyro", "diagnose_gyro_")):
@@ -60,7 +63,7 @@ def main(folder):
                 continue
             named = [e for e in a.get("effects", []) if e["name"] == "sample_clock"]
             named_text = f"named, p = {named[0]['p_value_largest']:.2f}" if named else "not named"
-            fit_before = b["fitting"]["before"]["dynamic_gap"]
+            fit_before = a["fitting"]["before"]["dynamic_gap"]
             fit_after = clock_gap(a.get("fitting_after_each", []))
             ho_before = [h["dynamic_gap_before"] for h in a["held_out"]]
             ho_after = [clock_gap(h.get("after_each", [])) for h in a["held_out"]]

@@ -27,8 +27,9 @@ def main(folder):
     runs = [json.loads((Path(folder) / f"diagnose_{k}.json").read_text()) for k in range(1, 7)]
     print("# The baseline's gap on the six recordings, and after the named effects\n")
     print("Each recording in turn is the fitting one; the other five are held out (poses, motion and the named")
-    print("per-recording effects refitted there). Static: chi2/dof of the interval means. Dynamic: (residual RMS /")
-    print("static noise RMS)^2 of the rotation phase. 1 is noise alone; above 2 counts as above the noise.\n")
+    print("per-recording effects refitted there). Static: chi2/dof of the interval means. Dynamic: the rotation-phase")
+    print("chi2/dof (src/selfcal/misfit.rs, the number `gfcal calibrate` prints), before the sample clocks. 1 is noise")
+    print("alone; above 2 counts as above the noise.\n")
     print("## Fitting recordings\n")
     print("| recording | static gap | dynamic gap | effects named | explanation |")
     print("| --- | --- | --- | --- | --- |")
