@@ -267,12 +267,6 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
         .collect();
     page.table(&["interval", "start (s)", "end (s)", "samples", "up (array axes)"], &rows);
     page.heading(2, "Assessment: what to trust");
-    let rows: Vec<(Vec<String>, bool)> = crate::selfcal::output::verdicts(cal, held)
-        .into_iter()
-        .map(|v| {
-            (vec![v.kind.to_string(), if v.trustworthy { "yes" } else { "no" }.to_string(), v.reason], !v.trustworthy)
-        })
-        .collect();
-    page.table(&["kind", "trustworthy", "why"], &rows);
+    super::verdict_table(&mut page, crate::selfcal::output::verdicts(cal, held));
     page.finish()
 }

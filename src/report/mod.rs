@@ -34,6 +34,18 @@ pub enum ReportError {
 /// The unit a report shows a parameter in, given its SI unit, and the factor from SI to it: SI
 /// itself, as in summary.csv, the Parquet tables, `identify` and `diagnose` (one unit per
 /// quantity everywhere gfcal writes).
+/// The verdicts on what to trust (`selfcal::assessment`) as a table: kind, trustworthy, why; the
+/// untrustworthy rows marked. Shared by the calibration and the diagnosis pages.
+pub fn verdict_table(page: &mut html::Page, verdicts: Vec<crate::selfcal::assessment::Verdict>) {
+    let rows: Vec<(Vec<String>, bool)> = verdicts
+        .into_iter()
+        .map(|v| {
+            (vec![v.kind.to_string(), if v.trustworthy { "yes" } else { "no" }.to_string(), v.reason], !v.trustworthy)
+        })
+        .collect();
+    page.table(&["kind", "trustworthy", "why"], &rows);
+}
+
 pub fn display_unit(si_unit: &str) -> (&str, f64) {
     (si_unit, 1.0)
 }

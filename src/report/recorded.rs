@@ -253,14 +253,7 @@ pub fn recorded_report(
         &rows,
     );
     page.heading(2, "Assessment: what to trust in the fitting recording's calibration");
-    let rows: Vec<(Vec<String>, bool)> = d
-        .assessment()
-        .into_iter()
-        .map(|v| {
-            (vec![v.kind.to_string(), if v.trustworthy { "yes" } else { "no" }.to_string(), v.reason], !v.trustworthy)
-        })
-        .collect();
-    page.table(&["kind", "trustworthy", "why"], &rows);
+    super::verdict_table(&mut page, d.assessment());
     let fig = residual_figure(d, rec, array, gravity_m_s2)?;
     page.heading(2, "Residuals");
     page.figure(&fig, None);
