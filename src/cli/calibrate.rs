@@ -160,13 +160,17 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
     }
     let _ = writeln!(
         s,
-        "rate from {}; fit {} in {} iterations, {:.2} s; Fisher null directions {} (gauge {})",
+        "rate from {}; fit {} in {} iterations, {:.2} s; Fisher null directions {} (gauge {}{})",
         if cal.use_gyro { "the reference gyroscopes" } else { "the accelerometers (gyroscope-free)" },
         if fit.converged { "converged" } else { "did NOT converge" },
         fit.iterations,
         elapsed_s,
         fit.null_directions,
-        fit.gauge.count()
+        fit.gauge.null_count(),
+        match fit.gauge.count() - fit.gauge.null_count() {
+            0 => String::new(),
+            k => format!("; and {k} directions of the axis groups' translations, seen only through the tilts, fixed"),
+        }
     );
     let _ = writeln!(
         s,
@@ -226,7 +230,7 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
             "NOT IDENTIFIABLE: the recording cannot see {} parameter combination(s) beyond the gauge (Fisher null directions {}, gauge {}); their {} parameters are unidentified (no value, no sigma) and the rest are calibrated. The unseen combinations (weights of each parameter scaled by its own information):",
             fit.unseen.len(),
             fit.null_directions,
-            fit.gauge.count(),
+            fit.gauge.null_count(),
             names.len()
         );
         for c in &fit.unseen {

@@ -32,7 +32,7 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
         if fit.converged { "converged" } else { "did not converge" },
         fit.iterations,
         fit.null_directions,
-        fit.gauge.count()
+        fit.gauge.null_count()
     ));
     for c in fit.gauge.describe() {
         page.text(&format!("Gauge, {c}."));
@@ -70,7 +70,7 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
             "The Fisher information has {} null directions, {} beyond the gauge's {}: these parameter combinations are not measured, so every parameter with a share in them is unidentified (no value, no sigma) and the rest are calibrated. Weights are those of the unit combination with each parameter scaled by its own information.",
             fit.null_directions,
             fit.unseen.len(),
-            fit.gauge.count()
+            fit.gauge.null_count()
         ));
         for c in &fit.unseen {
             page.text(&crate::selfcal::unseen::describe(c, rec.accelerometers()));

@@ -192,11 +192,7 @@ pub fn fit_from(
         return Err(FitError::TooFewPoses { found: poses, needed, with_dynamic });
     }
     let reference_rate = dynamic.and_then(|d| d.reference_rate_rad_s.as_ref()).is_some();
-    let gauge = Gauge {
-        rotation: !(with_dynamic && reference_rate),
-        translation: with_dynamic,
-        scale: with_dynamic && !reference_rate,
-    };
+    let gauge = Gauge::new(array, with_dynamic, reference_rate);
     let dim = PER_ACCEL * n + 2 * poses;
     let mut active = vec![true; dim];
     if !with_dynamic {
@@ -360,7 +356,7 @@ fn fit_start(
     // First the static phase alone (locations held), then both phases.
     let static_only_active: Vec<bool> =
         (0..dim).map(|i| active[i] && (i >= PER_ACCEL * n || i % PER_ACCEL < 4)).collect();
-    let static_gauge = Gauge { rotation: true, translation: false, scale: false };
+    let static_gauge = Gauge { rotation: true, translation: false, scale: false, translation_groups: 1 };
     let static_constraints = static_gauge.constraints(array, false, 2 * poses);
     let zeros = DVector::zeros(static_constraints.nrows());
     gauss_newton(
@@ -832,11 +828,7 @@ pub fn cramer_rao(
     let poses = up.len();
     let with_dynamic = dynamic.is_some_and(|d| d.samples() > 0);
     let reference_rate = dynamic.and_then(|d| d.reference_rate_rad_s.as_ref()).is_some();
-    let gauge = Gauge {
-        rotation: !(with_dynamic && reference_rate),
-        translation: with_dynamic,
-        scale: with_dynamic && !reference_rate,
-    };
+    let gauge = Gauge::new(array, with_dynamic, reference_rate);
     let dim = PER_ACCEL * n + 2 * poses;
     let active: Vec<bool> = (0..dim).map(|i| with_dynamic || i >= PER_ACCEL * n || i % PER_ACCEL < 4).collect();
     let stat = StaticData { means: DMatrix::zeros(poses, n), counts: counts.to_vec(), sigma: sigma.to_vec() };
@@ -869,11 +861,7 @@ pub fn unseen_at(
     let poses = up.len();
     let with_dynamic = dynamic.is_some_and(|d| d.samples() > 0);
     let reference_rate = dynamic.and_then(|d| d.reference_rate_rad_s.as_ref()).is_some();
-    let gauge = Gauge {
-        rotation: !(with_dynamic && reference_rate),
-        translation: with_dynamic,
-        scale: with_dynamic && !reference_rate,
-    };
+    let gauge = Gauge::new(array, with_dynamic, reference_rate);
     let dim = PER_ACCEL * n + 2 * poses;
     let active: Vec<bool> = (0..dim).map(|i| with_dynamic || i >= PER_ACCEL * n || i % PER_ACCEL < 4).collect();
     let stat = StaticData { means: DMatrix::zeros(poses, n), counts: counts.to_vec(), sigma: sigma.to_vec() };

@@ -77,7 +77,7 @@ pub fn check(array: &Array, reference_rate: bool) -> GeometryCheck {
     let sigma = vec![0.04; n];
     let (null_directions, gauge, unseen) =
         unseen_at(array, &counts, &sigma, &up, Some(&dynamic), &motion, &params, crate::units::STANDARD_GRAVITY_M_S2);
-    GeometryCheck { reference_rate, null_directions, gauge_null_directions: gauge.count(), unseen }
+    GeometryCheck { reference_rate, null_directions, gauge_null_directions: gauge.null_count(), unseen }
 }
 
 /// The sensing points' extent along their principal directions, largest first (m, RMS about the

@@ -181,31 +181,107 @@ impl Sensor {
 
 /// Which gauge conditions apply: rotation (no reference rate), translation (dynamic data), scale
 /// (dynamic data and no reference rate).
+///
+/// **Translation by axis group.** The specific force at the origin is a free unknown of every
+/// sample, and a sensing point enters an output only through `a_j . (alpha x r_j + W r_j)`: a
+/// common translation `d` of the sensing points of a set of accelerometers changes their outputs
+/// by `a_j . (alpha x d + W d)`, which the specific force's component along their axes absorbs
+/// exactly, unless some other accelerometer's axis shares that component. So where the nominal
+/// axes fall into groups whose spans are mutually orthogonal ([`axis_groups`]: the 24 axes of
+/// eight three-axis packages aligned with the array frame fall into the x, y and z groups), each
+/// group's common translation is null at nominal axes, and the data see it only through the axes'
+/// small tilts (a few mrad): a fit that lets it go takes it from whatever the model leaves out
+/// (on the MIMU4444, sensing points of one package's x, y and z axes 8-29 mm apart). The gauge
+/// then fixes every group's translation (its location errors sum to zero: the group's mean
+/// sensing point is the drawing's), `3 x groups` rows in place of the origin's 3. An array of one
+/// group (any array whose axes do not split so) has the single translation row set as before.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Gauge {
     pub rotation: bool,
     pub translation: bool,
     pub scale: bool,
+    /// Axis groups whose translations are fixed ([`axis_groups`]); 1 for most arrays.
+    pub translation_groups: usize,
+}
+
+/// Axes closer to orthogonal than this (|cos|) do not join two accelerometers into one group.
+pub const ORTHOGONAL_COS: f64 = 1e-6;
+
+/// The accelerometers' axis groups: the connected components of "the nominal axes are not
+/// orthogonal" (`|a_j . a_k| > ORTHOGONAL_COS`), numbered in the order they first appear. The
+/// spans of two groups are orthogonal, so each group alone sees the specific force's component in
+/// its span (see [`Gauge`]).
+pub fn axis_groups(array: &Array) -> Vec<usize> {
+    let axes: Vec<Vector3<f64>> = array.accelerometers().iter().map(|a| a.axis).collect();
+    let n = axes.len();
+    let mut group = vec![usize::MAX; n];
+    let mut next = 0;
+    for start in 0..n {
+        if group[start] != usize::MAX {
+            continue;
+        }
+        group[start] = next;
+        let mut stack = vec![start];
+        while let Some(j) = stack.pop() {
+            for k in 0..n {
+                if group[k] == usize::MAX && axes[j].dot(&axes[k]).abs() > ORTHOGONAL_COS {
+                    group[k] = next;
+                    stack.push(k);
+                }
+            }
+        }
+        next += 1;
+    }
+    group
 }
 
 impl Gauge {
+    /// The gauge of a calibration of `array`: with dynamic data (locations and their
+    /// translation), and with or without a reference rate.
+    pub fn new(array: &Array, with_dynamic: bool, reference_rate: bool) -> Self {
+        let groups = axis_groups(array).iter().max().map_or(1, |g| g + 1);
+        Self {
+            rotation: !(with_dynamic && reference_rate),
+            translation: with_dynamic,
+            scale: with_dynamic && !reference_rate,
+            translation_groups: groups.max(1),
+        }
+    }
+
+    /// The constraint rows: the directions the gauge fixes.
     pub fn count(&self) -> usize {
-        3 * self.rotation as usize + 3 * self.translation as usize + self.scale as usize
+        3 * self.rotation as usize + 3 * self.translation_groups * self.translation as usize + self.scale as usize
+    }
+
+    /// The directions the Fisher information leaves exactly null at generic (tilted) axes: the
+    /// rows less the axis groups' translations beyond the origin's, which the tilts let the data
+    /// see a little.
+    pub fn null_count(&self) -> usize {
+        self.count() - 3 * (self.translation_groups - 1) * self.translation as usize
     }
 
     /// Names of the gauge conditions, in row order of [`Gauge::constraints`].
-    pub fn describe(&self) -> Vec<&'static str> {
+    pub fn describe(&self) -> Vec<String> {
         let mut v = Vec::new();
         if self.rotation {
             v.push(
-                "rotation: the array frame is the mean frame of the accelerometers (tilt rotation vectors sum to zero)",
+                "rotation: the array frame is the mean frame of the accelerometers (tilt rotation vectors sum to zero)"
+                    .to_string(),
             );
         }
-        if self.translation {
-            v.push("translation: the origin is the centroid of the sensing points (location errors sum to zero)");
+        if self.translation && self.translation_groups > 1 {
+            v.push(format!(
+                "translation of each of the {} axis groups (accelerometers whose axes are orthogonal to every other group's): each group's location errors sum to zero, its mean sensing point the drawing's (the specific force along a group's axes absorbs the group's common translation; only the axes' tilts let the data see it)",
+                self.translation_groups
+            ));
+        } else if self.translation {
+            v.push(
+                "translation: the origin is the centroid of the sensing points (location errors sum to zero)"
+                    .to_string(),
+            );
         }
         if self.scale {
-            v.push("scale: the array has its nominal size (sum of (r_j - centroid) . dr_j is zero)");
+            v.push("scale: the array has its nominal size (sum of (r_j - centroid) . dr_j is zero)".to_string());
         }
         v
     }
@@ -229,12 +305,13 @@ impl Gauge {
             row += 3;
         }
         if self.translation && with_locations {
-            for j in 0..n {
+            let group = if self.translation_groups > 1 { axis_groups(array) } else { vec![0; n] };
+            for (j, g) in group.iter().enumerate() {
                 for d in 0..3 {
-                    c[(row + d, PER_ACCEL * j + 4 + d)] = 1.0;
+                    c[(row + 3 * g + d, PER_ACCEL * j + 4 + d)] = 1.0;
                 }
             }
-            row += 3;
+            row += 3 * self.translation_groups;
         }
         if self.scale && with_locations {
             let centroid: Vector3<f64> =

@@ -96,7 +96,7 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
         },
         "gauge": {
             "null_directions": fit.null_directions,
-            "expected_null_directions": fit.gauge.count(),
+            "expected_null_directions": fit.gauge.null_count(),
             "unseen_beyond_gauge": fit.unseen.len(),
             "conditions": fit.gauge.describe(),
         },

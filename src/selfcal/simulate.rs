@@ -213,6 +213,11 @@ pub fn project_to_gauge(array: &crate::array::Array, t: &mut SensorSet) {
         t.tilt_rad[j][1] += e.dot(u);
     }
     // Translation and scale gauges.
+    let groups = crate::selfcal::model::axis_groups(array);
+    if groups.iter().any(|&g| g > 0) {
+        project_locations_to_groups(array, &groups, t);
+        return;
+    }
     let mean: Vector3<f64> = t.location_error_m.iter().sum::<Vector3<f64>>() / n as f64;
     for d in &mut t.location_error_m {
         *d -= mean;
@@ -225,6 +230,30 @@ pub fn project_to_gauge(array: &crate::array::Array, t: &mut SensorSet) {
         for (d, r) in t.location_error_m.iter_mut().zip(&rel) {
             *d -= r * (num / den);
         }
+    }
+}
+
+/// The translation and scale gauges of an array of several axis groups (`selfcal::model::Gauge`):
+/// the location errors less their least-squares part in the span of every group's translation
+/// and the scaling about the centroid (the fit's constraints hold exactly for the result).
+fn project_locations_to_groups(array: &crate::array::Array, groups: &[usize], t: &mut SensorSet) {
+    let n = array.len();
+    let k = 3 * (groups.iter().max().map_or(0, |g| g + 1)) + 1;
+    let centroid: Vector3<f64> = array.accelerometers().iter().map(|a| a.position_m).sum::<Vector3<f64>>() / n as f64;
+    let mut basis = nalgebra::DMatrix::zeros(3 * n, k);
+    for (j, (acc, &g)) in array.accelerometers().iter().zip(groups).enumerate() {
+        let r = acc.position_m - centroid;
+        for d in 0..3 {
+            basis[(3 * j + d, 3 * g + d)] = 1.0;
+            basis[(3 * j + d, k - 1)] = r[d];
+        }
+    }
+    let x = nalgebra::DVector::from_fn(3 * n, |i, _| t.location_error_m[i / 3][i % 3]);
+    let gram = basis.transpose() * &basis;
+    let Some(c) = gram.pseudo_inverse(1e-12).ok().map(|g| g * (basis.transpose() * &x)) else { return };
+    let projected = x - basis * c;
+    for (j, d) in t.location_error_m.iter_mut().enumerate() {
+        *d = Vector3::new(projected[3 * j], projected[3 * j + 1], projected[3 * j + 2]);
     }
 }
 

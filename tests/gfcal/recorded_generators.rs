@@ -225,7 +225,9 @@ fn a_gyro_scale_and_misalignment_hidden_by_the_simulator_is_named_in_use_gyro_mo
 /// The sensing point of each axis: package 6's z axis sits 8 mm above its x axis (along z) in the
 /// truth, the other axes differ by the truth's random 0.5 mm. Every within-package difference is
 /// recovered (normalised errors below 4, RMS 0.5-1.6 over the 48 values) and package 6's test
-/// rejects.
+/// rejects. The z axes' common shift is the gauge's (`selfcal::model::Gauge`, axis groups): the
+/// truth is moved onto it, so package 6's z axis is 7 mm above its x axis there and every other
+/// package's z axis 1 mm below (what a calibration can tell: an axis against its group's mean).
 #[test]
 fn a_sensing_point_per_axis_made_by_the_simulator_is_found_inside_its_package() {
     let array = mimu_array();

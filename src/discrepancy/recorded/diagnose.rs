@@ -258,7 +258,8 @@ pub fn diagnose_recordings(
         t_mid_s: middle(&fitting.t_s),
     };
     let normal_a = accumulate_recording(&state_a, Nuisance::Baseline, None, &effects);
-    let sensing = sensing_points(&normal_a.total(), &layout, &fit.params);
+    let group_rows = (fit.gauge.translation_groups > 1).then(|| fit.gauge.constraints(&array.array, true, 0));
+    let sensing = sensing_points(&normal_a.total(), &layout, &fit.params, group_rows.as_ref());
     let mut held = Vec::with_capacity(held_out.len());
     for (other, score) in held_out.iter().zip(&scores) {
         let (_, st) = predict_with_state(

@@ -67,14 +67,22 @@ impl AxisOffset {
 
 /// Tests every package with more than one axis. `total` is the fitting recording's accumulation
 /// with the baseline as its first `PER_ACCEL n` columns.
-pub fn sensing_points(total: &Accumulated, layout: &EffectLayout, params: &SensorSet) -> Vec<SensingPoint> {
+///
+/// `groups`: the gauge's rows (over the accelerometer parameters) when the array has several
+/// axis groups, `None` otherwise.
+pub fn sensing_points(
+    total: &Accumulated,
+    layout: &EffectLayout,
+    params: &SensorSet,
+    groups: Option<&DMatrix<f64>>,
+) -> Vec<SensingPoint> {
     let n = params.len();
     let g: Vec<usize> = (0..PER_ACCEL * n).collect();
     let ngg = DMatrix::from_fn(g.len(), g.len(), |i, j| total.normal[(g[i], g[j])]);
     // The spread of the scores: the dynamic samples' sandwich and the static intervals' model
     // information (`projected`; at the baseline's own solution, with its variance factor).
     let mgg = DMatrix::from_fn(g.len(), g.len(), |i, j| total.meat[(g[i], g[j])] + total.model_normal[(g[i], g[j])]);
-    let (pg, _) = symmetric_pinv(&ngg, 1e-11);
+    let pg = groups.and_then(|c| constrained_inverse(&ngg, c)).unwrap_or_else(|| symmetric_pinv(&ngg, 1e-11).0);
     let cov = &pg * mgg * &pg;
     let mut out = Vec::new();
     for (m, accs) in layout.packages.iter().enumerate() {
@@ -102,4 +110,26 @@ pub fn sensing_points(total: &Accumulated, layout: &EffectLayout, params: &Senso
         });
     }
     out
+}
+
+/// The top-left block of the inverse of `[[N, C^T], [C, 0]]`: the inverse of `N` on the
+/// directions the constraints `C x = 0` leave free (zero on those they fix); `None` when singular.
+fn constrained_inverse(n: &DMatrix<f64>, c: &DMatrix<f64>) -> Option<DMatrix<f64>> {
+    let (dim, nc) = (n.nrows(), c.nrows());
+    if c.ncols() != dim {
+        return None;
+    }
+    let mut k = DMatrix::zeros(dim + nc, dim + nc);
+    k.view_mut((0, 0), (dim, dim)).copy_from(n);
+    k.view_mut((dim, 0), (nc, dim)).copy_from(c);
+    k.view_mut((0, dim), (dim, nc)).copy_from(&c.transpose());
+    // Parameters the normal matrix does not hold (a zero row, e.g. inactive) keep a unit pivot.
+    for i in 0..dim {
+        if n[(i, i)] == 0.0 {
+            k[(i, i)] = 1.0;
+        }
+    }
+    let inv = k.try_inverse()?;
+    let block = inv.view((0, 0), (dim, dim)).into_owned();
+    block.iter().all(|v| v.is_finite()).then_some(block)
 }
