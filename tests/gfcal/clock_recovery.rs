@@ -193,3 +193,46 @@ fn a_clocked_calibration_has_the_same_bits_on_one_thread_and_on_two() {
     assert_eq!(one.fit.iterations, two.fit.iterations);
     assert_eq!(bits(&one), bits(&two));
 }
+
+/// The clock model's gauge, counted: a change common to every package's clock (its rate offset,
+/// drift or phase) moves every age alike and the ages enter only relative to their mean, so the
+/// clocks' normal matrix (the eight packages' rate offset, drift and phase: 24 unknowns, at the
+/// calibration's own clocks) has exactly 3 null directions, the common ones, and every relative
+/// direction is seen (scaled eigenvalues below 1e-9 of the largest counted as null; the next one
+/// must stand 1e3 times above that).
+#[test]
+fn the_clock_models_gauge_has_exactly_the_three_common_null_directions() {
+    use gfcal::selfcal::calibrate::prepare_dynamic;
+    use gfcal::selfcal::model::sensors;
+    use gfcal::selfcal::timing::ClockProblem;
+    let mut cell = short_matched(30.0);
+    cell.protocol.poses = 6;
+    let array = &cell.array;
+    let truth = config_truth(array, 7);
+    let sim = simulate(array, &truth, &cell.protocol, &mut trial_rng(7, 1)).expect("simulated");
+    let cal = calibrate(&sim.recording, array, &CalibrateSettings::default()).expect("calibrates");
+    let clocks = cal.clocks.as_ref().expect("clocks fitted");
+    let prepared = prepare_dynamic(&sim.recording, &cal.segmentation, false, cal.gyro_bias_rad_s);
+    let d = prepared.data.expect("a rotation phase");
+    let sens = sensors(&array.array, &cal.fit.params);
+    let weights: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.expect("every axis has its package")).collect();
+    let problem = ClockProblem::new(&sens, &d, &cal.fit.motion, &weights, &package_of);
+    let (_, normal, _) = problem.relative_steps(&clocks.clocks, 0..d.samples(), 1);
+    assert_eq!(normal.nrows(), 24);
+    // Symmetric (the step fills the upper triangle and mirrors it) and scaled by its diagonal.
+    let scale: Vec<f64> = (0..24).map(|i| normal[(i, i)].max(1e-300).sqrt()).collect();
+    let scaled = nalgebra::DMatrix::from_fn(24, 24, |a, b| normal[(a.min(b), a.max(b))] / (scale[a] * scale[b]));
+    let mut eig: Vec<f64> = scaled.symmetric_eigenvalues().iter().copied().collect();
+    eig.sort_by(f64::total_cmp);
+    let largest = eig[23];
+    let null = eig.iter().filter(|&&e| e < 1e-9 * largest).count();
+    assert_eq!(null, 3, "scaled eigenvalues {:?}", &eig[..6]);
+    assert!(eig[3] > 1e-6 * largest, "the weakest relative direction {:e} of the largest", eig[3] / largest);
+    // The null directions are the common ones: every package's parameter moved alike.
+    for a in 0..3 {
+        let v = nalgebra::DVector::from_fn(24, |i, _| if i % 3 == a { scale[i] } else { 0.0 });
+        let hv = &scaled * &v;
+        assert!(hv.norm() < 1e-9 * largest * v.norm(), "common direction {a}: |H v| = {:e}", hv.norm());
+    }
+}
