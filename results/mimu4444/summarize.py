@@ -64,15 +64,17 @@ pred = f"{d}/protocol_run/summary.csv"
 if os.path.exists(pred):
     rows = [r for r in csv.DictReader(open(pred)) if r["table"] == "parameter"]
     print("\n## Against the Monte Carlo prediction (configs/mimu4444_protocol.toml)\n")
-    print(f"Simulated recordings of this board's protocol ({rows[0]['n']} trials), calibrated gyroscope-free: the predicted sigma (median over the 24 accelerometers of the Cramer-Rao sigma, RMS over trials), how well the estimator meets it (RMS over trials of error / that trial's sigma, median and range over the 24), and the six real recordings' printed sigma and spread, both as medians over the 24 accelerometers, with the spread in units of the predicted sigma.\n")
-    print("| parameter | unit | predicted sigma | simulated RMS(error/sigma) median [min-max] | real printed sigma | real spread | real spread / predicted |")
-    print("|---|---|---|---|---|---|---|")
+    print(f"Simulated recordings of this board's protocol ({rows[0]['n']} trials), calibrated gyroscope-free: the predicted sigma (median over the 24 accelerometers of the Cramer-Rao sigma, RMS over trials), how well the estimator meets it (RMS over trials of error / that trial's sigma, median and range over the 24), the simulated calibrations' own RMS error (the Monte Carlo's prediction of the spread of repeated calibrations, median over the 24), and the six real recordings' printed sigma and spread, both as medians over the 24 accelerometers, with the spread in units of the predicted sigma and of the simulated RMS error.\n")
+    print("| parameter | unit | predicted sigma | simulated RMS(error/sigma) median [min-max] | simulated RMS error | real printed sigma | real spread | real spread / predicted | real spread / simulated RMS error |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for name in ["scale_factor", "bias", "tilt_u", "tilt_w", "dx", "dy", "dz"]:
         sel = [r for r in rows if r["name"].split(".")[1] == name]
         crb = [float(r["crb_sigma"]) for r in sel]; rat = [float(r["ratio"]) for r in sel]
-        printed = []; spread = []; rel = []
-        for r, c in zip(sel, crb):
+        rmse = [float(r["rmse"]) for r in sel]
+        printed = []; spread = []; rel = []; rel_mc = []
+        for r, c, e in zip(sel, crb, rmse):
             a = int(r["name"].split(".")[0][1:])
             v = params[(name, a)]
             printed.append(st.median(x[1] for x in v)); s = st.stdev(x[0] for x in v); spread.append(s); rel.append(s / c)
-        print(f"| {name} | {sel[0]['unit']} | {st.median(crb):.2e} | {st.median(rat):.2f} [{min(rat):.2f}-{max(rat):.2f}] | {st.median(printed):.2e} | {st.median(spread):.2e} | {st.median(rel):.1f} |")
+            rel_mc.append(s / e)
+        print(f"| {name} | {sel[0]['unit']} | {st.median(crb):.2e} | {st.median(rat):.2f} [{min(rat):.2f}-{max(rat):.2f}] | {st.median(rmse):.2e} | {st.median(printed):.2e} | {st.median(spread):.2e} | {st.median(rel):.1f} | {st.median(rel_mc):.1f} |")
