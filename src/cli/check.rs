@@ -148,6 +148,14 @@ fn geometry_text(a: &gfcal::array::wiring::RecordingArray) -> String {
     use std::fmt::Write;
     let n = a.array.len();
     let mut s = String::new();
+    let groups = gfcal::selfcal::model::axis_groups(&a.array).iter().max().map_or(1, |g| g + 1);
+    if groups > 1 {
+        let _ = writeln!(
+            s,
+            "  axis groups: the axes split into {groups} groups orthogonal to one another; each group's common translation is seen only through its axes' tilts, and the gauge fixes it (its mean sensing point is the drawing's): {} directions beside the gauge's null ones",
+            3 * (groups - 1)
+        );
+    }
     for reference_rate in [false, true] {
         let c = check(&a.array, reference_rate);
         let how = if reference_rate { "with a measured rate (--use-gyro)" } else { "gyroscope-free" };

@@ -549,4 +549,7 @@ fn a_flat_subset_of_the_board_names_what_it_cannot_see_and_calibrates_the_rest()
     let o = gfcal(&["check", ARRAY]);
     let out = String::from_utf8_lossy(&o.stdout).into_owned();
     assert!(out.contains("sees every parameter beyond the gauge") && !out.contains("flat:"), "{out}");
+    // Its 24 axes lie along the array's x, y and z: three axis groups, whose common translations the
+    // gauge fixes (selfcal::model::Gauge), 6 directions beside the 7 null ones.
+    assert!(out.contains("axis groups: the axes split into 3 groups") && out.contains("6 directions beside"), "{out}");
 }
