@@ -16,6 +16,7 @@ use super::data::{DynamicData, StaticData};
 use super::fit::{Fit, FitError, FitSettings, fit, fit_from};
 use super::model::sensors;
 use super::recording::Recording;
+use super::robust::robust_covariance;
 use super::segment::{DetectorSettings, Interval, Segmentation, segment};
 use super::timing::{ClockEstimate, ClockProblem, SigmaCheck, TIMING_UNKNOWNS_PER_SAMPLE, gyro_offsets, host_dt_s};
 use crate::array::wiring::RecordingArray;
@@ -338,6 +339,7 @@ fn estimate_clocks(
         let weights: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
         ClockProblem::new(&sens, d, &fit.motion, &weights, &package_of)
     };
+    let mut fitted_to = d.clone();
     for outer in 0..iterations {
         let problem = problem_at(&fit);
         clocks = problem.relative_steps(&clocks, all.clone(), 3).0;
@@ -352,7 +354,20 @@ fn estimate_clocks(
         let last = outer + 1 == iterations;
         let refit = FitSettings { max_iterations: if last { settings.max_iterations } else { 6 }, ..*settings };
         fit = fit_from(&array.array, stat, Some(&corrected), &refit, Some(&fit)).map_err(ClockFailure::Fit)?;
+        fitted_to = corrected;
     }
+    // The parameters' covariance from the scores' spread over blocks of samples: the residual
+    // the clock model leaves is not white (selfcal::robust). The rate's sigmas follow it.
+    fit.covariance = robust_covariance(&array.array, stat, &fitted_to, settings, &fit).map_err(ClockFailure::Fit)?;
+    fit.omega_sigma_rad_s = crate::selfcal::track::rate_sigmas(
+        &array.array,
+        &fitted_to,
+        &fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect::<Vec<_>>(),
+        &fit.params,
+        &fit.motion,
+        fitted_to.reference_rate_rad_s.is_some(),
+        &fit.covariance,
+    );
     // The relative part's sigmas: the linearised normal matrix at the final parameters, checked
     // on the two halves of the rotation phase (each fitted apart from the final clocks): the RMS
     // of their relative rate offsets' difference over its sigma (the Birge ratio) inflates every

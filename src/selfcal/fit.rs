@@ -140,20 +140,20 @@ fn initial_up(array: &Array, data: &StaticData) -> Vec<Vector3<f64>> {
         .collect()
 }
 
-struct State {
-    params: SensorSet,
-    up: Vec<Vector3<f64>>,
-    motion: Vec<SampleMotion>,
+pub(super) struct State {
+    pub(super) params: SensorSet,
+    pub(super) up: Vec<Vector3<f64>>,
+    pub(super) motion: Vec<SampleMotion>,
 }
 
-struct Normal {
-    h: DMatrix<f64>,
-    g: DVector<f64>,
+pub(super) struct Normal {
+    pub(super) h: DMatrix<f64>,
+    pub(super) g: DVector<f64>,
 }
 
-struct Weights {
-    static_w: DMatrix<f64>,
-    dynamic_w: Vec<f64>,
+pub(super) struct Weights {
+    pub(super) static_w: DMatrix<f64>,
+    pub(super) dynamic_w: Vec<f64>,
 }
 
 /// Fits the model to a recording's static and (optional) dynamic phase.
@@ -491,7 +491,7 @@ fn total_cost(
 }
 
 /// Normal equations of the parameters with the motion eliminated (Schur complement).
-fn normal_equations(
+pub(super) fn normal_equations(
     array: &Array,
     stat: &StaticData,
     dynamic: Option<&DynamicData>,
@@ -576,7 +576,7 @@ fn normal_equations(
 /// accelerometers with `P_jk = w_j w_k dl_j^T Hll^+ dl_k`: 7 x 7 blocks instead of a dense
 /// `7 N x 7 N` product.
 #[allow(clippy::too_many_arguments)]
-fn accumulate_sample(
+pub(super) fn accumulate_sample(
     sens: &[Sensor],
     d: &DynamicData,
     i: usize,
@@ -656,7 +656,7 @@ fn accumulate_sample(
 
 /// Per-sample buffers of [`accumulate_sample`], reused across the samples of a chunk.
 #[derive(Default)]
-struct SampleScratch {
+pub(super) struct SampleScratch {
     /// `w_j dl_j` of every used output.
     wdl: Vec<SVector9>,
     dg: Vec<[f64; PER_ACCEL]>,
@@ -667,7 +667,7 @@ type SVector9 = nalgebra::SVector<f64, 9>;
 
 /// The gauge's rows and the unseen combinations' rows, with the values that hold them: zero for
 /// the gauge, the current value for an unseen combination.
-fn pinned(gauge: &DMatrix<f64>, seen: &Unseen, state: &State) -> (DMatrix<f64>, DVector<f64>) {
+pub(super) fn pinned(gauge: &DMatrix<f64>, seen: &Unseen, state: &State) -> (DMatrix<f64>, DVector<f64>) {
     let (ng, dim) = gauge.shape();
     let rows = seen.rows();
     let mut c = DMatrix::zeros(ng + rows.nrows(), dim);
@@ -727,7 +727,7 @@ fn kkt_step(
 
 /// Covariance in the gauge: the top-left block of the inverse KKT matrix, NaN on the inactive
 /// parameters and on those of an unseen combination (`unseen`, held by rows of `constraints`).
-fn constrained_inverse(
+pub(super) fn constrained_inverse(
     h: &DMatrix<f64>,
     constraints: &DMatrix<f64>,
     active: &[bool],

@@ -10,7 +10,8 @@
 //! - [`motion`]: the motion of one sample (rate sign by continuity);
 //! - [`track`]: the motion of every sample of the rotation phase (basins repaired, signed, sigmas);
 //! - [`data`]: the two phases' data, shared by the estimator, the tracker and the prediction;
-//! - [`fit`]: the joint estimator and its covariance; [`unseen`]: what it cannot see beyond the
+//! - [`fit`]: the joint estimator and its covariance; [`robust`]: the covariance from the scores' spread
+//!   over blocks of samples (a clocked calibration's); [`unseen`]: what it cannot see beyond the
 //!   gauge; [`geometry`]: what an array's geometry cannot see, on synthetic data;
 //! - [`misfit`]: the rotation phase's chi^2/dof, one metric for calibrate and diagnose;
 //! - [`calibrate`]: the workflow; [`output`]: its JSON; [`assessment`]: what to trust in it.
@@ -27,6 +28,7 @@ pub mod motion;
 pub mod output;
 pub mod predict;
 pub mod recording;
+pub mod robust;
 pub mod sampling;
 pub mod segment;
 pub mod simulate;

@@ -361,3 +361,43 @@ fn real_recordings_calibrate_with_the_expected_segmentation_and_gauge() {
         assert!(cal.gyro_check.is_some());
     }
 }
+
+/// The robust covariance (`selfcal::robust`) against the model's where the model is right: a
+/// recording simulated without the clocks or vibration (white noise of the weights' variance) and
+/// calibrated without them. Decided before the first run: every location's robust sigma within
+/// 0.75-1.3 of the model's and their median within 0.9-1.1 (about 375 blocks: a ratio's sampling
+/// error is about 4%), every bias and scale factor within 0.9-1.1 (static information, shared).
+#[test]
+fn the_robust_covariance_is_the_models_where_the_residuals_are_white() {
+    use gfcal::selfcal::calibrate::prepare_dynamic;
+    use gfcal::selfcal::robust::robust_covariance;
+    let array = super::simulate::without_clocks(&mimu_array());
+    let t = truth(&array, 3);
+    let sim = simulate_one(&array, &t, 3);
+    let cal = calibrate(&sim.recording, &array, &CalibrateSettings::default()).expect("calibrates");
+    let d = prepare_dynamic(&sim.recording, &cal.segmentation, false, cal.gyro_bias_rad_s).data.expect("rotation");
+    let robust = robust_covariance(&array.array, &cal.static_data, &d, &Default::default(), &cal.fit)
+        .expect("robust covariance");
+    let n = array.array.len();
+    let mut location_ratios = Vec::new();
+    for j in 0..n {
+        for p in 0..PER_ACCEL {
+            let i = PER_ACCEL * j + p;
+            let ratio = (robust[(i, i)] / cal.fit.covariance[(i, i)]).sqrt();
+            if p >= 4 {
+                assert!((0.75..1.3).contains(&ratio), "a{}.{}: robust / model sigma {ratio}", j + 1, NAMES[p]);
+                location_ratios.push(ratio);
+            } else if p < 2 {
+                assert!((0.9..1.1).contains(&ratio), "a{}.{}: robust / model sigma {ratio}", j + 1, NAMES[p]);
+            }
+        }
+    }
+    location_ratios.sort_by(f64::total_cmp);
+    let median = location_ratios[location_ratios.len() / 2];
+    eprintln!(
+        "locations: robust / model sigma median {median:.3}, range {:.3}-{:.3}",
+        location_ratios[0],
+        location_ratios[location_ratios.len() - 1]
+    );
+    assert!((0.9..1.1).contains(&median), "median {median}");
+}

@@ -1,0 +1,104 @@
+//! A calibration's covariance that does not rest on white residuals: the sandwich
+//! `K (M_static + sum_b s_b s_b^T) K` over blocks of consecutive rotation-phase samples.
+//!
+//! The fit's covariance (`selfcal::fit`) is the constrained inverse `K` of the Fisher information:
+//! right when every output's residual is white noise of the variance its weight assumes. Where a
+//! model leaves a residual that is correlated across the accelerometers of a sample and over
+//! neighbouring samples (the rotation phase of a real board after its sample clocks: about 15
+//! times the static noise, driven by the motion), `K` is too small. Here the spread of the
+//! scores is measured instead of assumed: `s_b` is the reduced score (the gradient of the
+//! weighted misfit with every sample's motion eliminated, as the fit's normal equations form it)
+//! summed over block `b` of [`BLOCK_SAMPLES`] consecutive samples, so that a residual correlated
+//! within a block (and across a sample's accelerometers) is counted as it is. The static
+//! intervals keep their model information (their residuals are near white; their weights already
+//! carry the static chi^2/dof). With white residuals `sum_b s_b s_b^T` tends to the dynamic
+//! information and the sandwich to `K` (`K H K = K` in the gauge).
+
+use nalgebra::DMatrix;
+use rayon::prelude::*;
+
+use super::data::{DynamicData, StaticData};
+use super::fit::{
+    Fit, FitError, FitSettings, SampleScratch, State, Weights, accumulate_sample, constrained_inverse,
+    normal_equations, pinned,
+};
+use super::model::{PER_ACCEL, sensors};
+use super::unseen::unseen;
+use crate::array::Array;
+
+/// Samples per block: 0.26 s at the MIMU4444's 62.5 Hz, several times the time over which its
+/// rotation phase's residual stays correlated (the clocks' offsets have a lag-1 autocorrelation of
+/// 0.5-0.75), and about 375 blocks in a 100 s rotation phase.
+pub const BLOCK_SAMPLES: usize = 16;
+
+/// The robust covariance of `fit` (module docs), in the fit's gauge and with its unseen
+/// parameters NaN, as `Fit::covariance`. `dynamic`: the data the fit was fitted to.
+pub fn robust_covariance(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: &DynamicData,
+    settings: &FitSettings,
+    fit: &Fit,
+) -> Result<DMatrix<f64>, FitError> {
+    let n = array.len();
+    let na = PER_ACCEL * n;
+    let poses = stat.means.nrows();
+    let dim = na + 2 * poses;
+    let active = vec![true; dim];
+    let weights = Weights {
+        static_w: DMatrix::from_fn(poses, n, |p, j| {
+            stat.counts[p] as f64 / (stat.sigma[j].powi(2) * fit.static_variance_factor)
+        }),
+        dynamic_w: fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect(),
+    };
+    let state = State { params: fit.params.clone(), up: fit.up.clone(), motion: fit.motion.clone() };
+    let normal = normal_equations(array, stat, Some(dynamic), settings, &weights, &state, &active);
+    let static_normal = normal_equations(array, stat, None, settings, &weights, &state, &active);
+    let gauge = fit.gauge.constraints(array, true, 2 * poses);
+    let seen = unseen(&normal.h, &gauge, &active);
+    let (constraints, _) = pinned(&gauge, &seen, &state);
+    let k = constrained_inverse(&normal.h, &constraints, &active, &fit.unseen_parameters, true)?;
+    // The dynamic scores, block by block (each block's sum in order: the same bits on any
+    // number of threads).
+    let sens = sensors(array, &fit.params);
+    let fixed = dynamic.reference_rate_rad_s.is_some();
+    let blocks = dynamic.samples().div_ceil(BLOCK_SAMPLES);
+    let scores: Vec<nalgebra::DVector<f64>> = (0..blocks)
+        .into_par_iter()
+        .map(|b| {
+            let mut h = DMatrix::zeros(na, na);
+            let mut g = nalgebra::DVector::zeros(na);
+            let mut scratch = SampleScratch::default();
+            for i in b * BLOCK_SAMPLES..((b + 1) * BLOCK_SAMPLES).min(dynamic.samples()) {
+                accumulate_sample(
+                    &sens,
+                    dynamic,
+                    i,
+                    &fit.motion[i],
+                    &weights.dynamic_w,
+                    fixed,
+                    &mut h,
+                    &mut g,
+                    &mut scratch,
+                );
+            }
+            g
+        })
+        .collect();
+    let mut meat = static_normal.h;
+    {
+        let mut top = meat.view_mut((0, 0), (na, na));
+        for s in &scores {
+            top.ger(1.0, s, s, 1.0);
+        }
+    }
+    let finite = k.map(|v| if v.is_finite() { v } else { 0.0 });
+    let mut cov = &finite * meat * &finite;
+    for i in 0..dim {
+        if !k[(i, i)].is_finite() {
+            cov.row_mut(i).fill(f64::NAN);
+            cov.column_mut(i).fill(f64::NAN);
+        }
+    }
+    Ok(cov)
+}
