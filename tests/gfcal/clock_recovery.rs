@@ -156,6 +156,16 @@ fn the_diagnosis_names_sample_clock_with_the_clocks_and_nothing_without() {
     assert!(why.contains("no sawtooth"), "{why}");
 }
 
+/// A short recording of the matched protocol with the board's clocks: 6 poses (the fewest a
+/// calibration with a rotation phase takes) and 30 s of rotation, truth and noise from `seed`.
+fn short_clocked_recording(seed: u64) -> (gfcal::mc::protocol::ProtocolCell, gfcal::selfcal::simulate::Simulated) {
+    let mut cell = short_matched(30.0);
+    cell.protocol.poses = 6;
+    let truth = config_truth(&cell.array, seed);
+    let sim = simulate(&cell.array, &truth, &cell.protocol, &mut trial_rng(seed, 1)).expect("simulated");
+    (cell, sim)
+}
+
 /// A run is a function of its input: one simulated recording with its clocks calibrated on one
 /// thread and on two gives the same bits (clocks, sigmas, parameters, misfits). It failed while the
 /// clock fit's normal equations were summed by rayon's fold/reduce, whose grouping of the sums
@@ -163,11 +173,8 @@ fn the_diagnosis_names_sample_clock_with_the_clocks_and_nothing_without() {
 /// fixed chunks summed in order, `selfcal::timing`).
 #[test]
 fn a_clocked_calibration_has_the_same_bits_on_one_thread_and_on_two() {
-    let mut cell = short_matched(30.0);
-    cell.protocol.poses = 6;
+    let (cell, sim) = short_clocked_recording(7);
     let array = &cell.array;
-    let truth = config_truth(array, 7);
-    let sim = simulate(array, &truth, &cell.protocol, &mut trial_rng(7, 1)).expect("simulated");
     let on = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a pool");
         pool.install(|| calibrate(&sim.recording, array, &CalibrateSettings::default()).expect("calibrates"))
@@ -205,11 +212,8 @@ fn the_clock_models_gauge_has_exactly_the_three_common_null_directions() {
     use gfcal::selfcal::calibrate::prepare_dynamic;
     use gfcal::selfcal::model::sensors;
     use gfcal::selfcal::timing::ClockProblem;
-    let mut cell = short_matched(30.0);
-    cell.protocol.poses = 6;
+    let (cell, sim) = short_clocked_recording(7);
     let array = &cell.array;
-    let truth = config_truth(array, 7);
-    let sim = simulate(array, &truth, &cell.protocol, &mut trial_rng(7, 1)).expect("simulated");
     let cal = calibrate(&sim.recording, array, &CalibrateSettings::default()).expect("calibrates");
     let clocks = cal.clocks.as_ref().expect("clocks fitted");
     let prepared = prepare_dynamic(&sim.recording, &cal.segmentation, false, cal.gyro_bias_rad_s);
