@@ -31,9 +31,6 @@ pub enum ReportError {
     Write { path: PathBuf, source: std::io::Error },
 }
 
-/// The unit a report shows a parameter in, given its SI unit, and the factor from SI to it: SI
-/// itself, as in summary.csv, the Parquet tables, `identify` and `diagnose` (one unit per
-/// quantity everywhere gfcal writes).
 /// The verdicts on what to trust (`selfcal::assessment`) as a table: kind, trustworthy, why; the
 /// untrustworthy rows marked. Shared by the calibration and the diagnosis pages.
 pub fn verdict_table(page: &mut html::Page, verdicts: Vec<crate::selfcal::assessment::Verdict>) {
@@ -46,6 +43,9 @@ pub fn verdict_table(page: &mut html::Page, verdicts: Vec<crate::selfcal::assess
     page.table(&["kind", "trustworthy", "why"], &rows);
 }
 
+/// The unit a report shows a parameter in, given its SI unit, and the factor from SI to it: SI
+/// itself, as in summary.csv, the Parquet tables, `identify` and `diagnose` (one unit per
+/// quantity everywhere gfcal writes).
 pub fn display_unit(si_unit: &str) -> (&str, f64) {
     (si_unit, 1.0)
 }

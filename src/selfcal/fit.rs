@@ -148,7 +148,7 @@ pub(super) struct State {
 
 pub(super) struct Normal {
     pub(super) h: DMatrix<f64>,
-    pub(super) g: DVector<f64>,
+    g: DVector<f64>,
 }
 
 pub(super) struct Weights {
@@ -542,7 +542,7 @@ pub(super) fn normal_equations(
                         &state.motion[i],
                         &w.dynamic_w,
                         fixed,
-                        &mut ha,
+                        Some(&mut ha),
                         &mut ga,
                         &mut scratch,
                     );
@@ -574,7 +574,8 @@ pub(super) fn normal_equations(
 /// parameters. Each output depends on its own accelerometer's parameters only, so column
 /// `(j, a)` of `M` is `w_j dg_j[a] dl_j`, and the update is `P_jk dg_j dg_k^T` for every pair of
 /// accelerometers with `P_jk = w_j w_k dl_j^T Hll^+ dl_k`: 7 x 7 blocks instead of a dense
-/// `7 N x 7 N` product.
+/// `7 N x 7 N` product. Without `h` only the reduced gradient is added (the scores of
+/// `selfcal::robust`).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn accumulate_sample(
     sens: &[Sensor],
@@ -583,7 +584,7 @@ pub(super) fn accumulate_sample(
     m: &SampleMotion,
     weights: &[f64],
     fixed: bool,
-    h: &mut DMatrix<f64>,
+    mut h: Option<&mut DMatrix<f64>>,
     g: &mut DVector<f64>,
     scratch: &mut SampleScratch,
 ) {
@@ -614,8 +615,12 @@ pub(super) fn accumulate_sample(
         let base = PER_ACCEL * j;
         for a in 0..PER_ACCEL {
             g[base + a] += wt * dg[a] * r;
-            for b in 0..PER_ACCEL {
-                h[(base + a, base + b)] += wt * dg[a] * dg[b];
+        }
+        if let Some(h) = h.as_deref_mut() {
+            for a in 0..PER_ACCEL {
+                for b in 0..PER_ACCEL {
+                    h[(base + a, base + b)] += wt * dg[a] * dg[b];
+                }
             }
         }
         scratch.wdl.push(dl * wt);
@@ -633,13 +638,14 @@ pub(super) fn accumulate_sample(
     let y = inv * gl;
     let m_used = scratch.index.len();
     for a in 0..m_used {
-        let ya = inv * scratch.wdl[a];
         let base_a = PER_ACCEL * scratch.index[a];
         let ga = scratch.wdl[a].dot(&y);
         let dga = scratch.dg[a];
         for p in 0..PER_ACCEL {
             g[base_a + p] -= dga[p] * ga;
         }
+        let Some(h) = h.as_deref_mut() else { continue };
+        let ya = inv * scratch.wdl[a];
         for b in 0..m_used {
             let pab = ya.dot(&scratch.wdl[b]);
             let base_b = PER_ACCEL * scratch.index[b];
@@ -727,7 +733,8 @@ fn kkt_step(
 
 /// Covariance in the gauge: the top-left block of the inverse KKT matrix, NaN on the inactive
 /// parameters and on those of an unseen combination (`unseen`, held by rows of `constraints`).
-pub(super) fn constrained_inverse(
+/// `lenient`: an active, seen parameter whose variance is not positive is no error.
+pub fn constrained_inverse(
     h: &DMatrix<f64>,
     constraints: &DMatrix<f64>,
     active: &[bool],

@@ -52,6 +52,8 @@ pub fn robust_covariance(
         dynamic_w: fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect(),
     };
     let state = State { params: fit.params.clone(), up: fit.up.clone(), motion: fit.motion.clone() };
+    // K from the information at the fit's solution with its stored weights (the fit's own
+    // covariance to about 1e-6 of a sigma: the weights go through the stored sigmas).
     let normal = normal_equations(array, stat, Some(dynamic), settings, &weights, &state, &active);
     let static_normal = normal_equations(array, stat, None, settings, &weights, &state, &active);
     let gauge = fit.gauge.constraints(array, true, 2 * poses);
@@ -66,7 +68,6 @@ pub fn robust_covariance(
     let scores: Vec<nalgebra::DVector<f64>> = (0..blocks)
         .into_par_iter()
         .map(|b| {
-            let mut h = DMatrix::zeros(na, na);
             let mut g = nalgebra::DVector::zeros(na);
             let mut scratch = SampleScratch::default();
             for i in b * BLOCK_SAMPLES..((b + 1) * BLOCK_SAMPLES).min(dynamic.samples()) {
@@ -77,7 +78,7 @@ pub fn robust_covariance(
                     &fit.motion[i],
                     &weights.dynamic_w,
                     fixed,
-                    &mut h,
+                    None,
                     &mut g,
                     &mut scratch,
                 );

@@ -9,6 +9,7 @@ use nalgebra::{DMatrix, DVector};
 
 use super::effect::EffectLayout;
 use super::projected::Accumulated;
+use crate::selfcal::fit::constrained_inverse;
 use crate::selfcal::model::{PER_ACCEL, SensorSet};
 use crate::stats::{symmetric_pinv, wald_p};
 
@@ -82,7 +83,7 @@ pub fn sensing_points(
     // The spread of the scores: the dynamic samples' sandwich and the static intervals' model
     // information (`projected`; at the baseline's own solution, with its variance factor).
     let mgg = DMatrix::from_fn(g.len(), g.len(), |i, j| total.meat[(g[i], g[j])] + total.model_normal[(g[i], g[j])]);
-    let pg = groups.and_then(|c| constrained_inverse(&ngg, c)).unwrap_or_else(|| symmetric_pinv(&ngg, 1e-11).0);
+    let pg = groups.and_then(|c| gauge_inverse(&ngg, c)).unwrap_or_else(|| symmetric_pinv(&ngg, 1e-11).0);
     let cov = &pg * mgg * &pg;
     let mut out = Vec::new();
     for (m, accs) in layout.packages.iter().enumerate() {
@@ -112,24 +113,15 @@ pub fn sensing_points(
     out
 }
 
-/// The top-left block of the inverse of `[[N, C^T], [C, 0]]`: the inverse of `N` on the
-/// directions the constraints `C x = 0` leave free (zero on those they fix); `None` when singular.
-fn constrained_inverse(n: &DMatrix<f64>, c: &DMatrix<f64>) -> Option<DMatrix<f64>> {
-    let (dim, nc) = (n.nrows(), c.nrows());
+/// The inverse of `n` in the gauge `C x = 0` (`selfcal::fit::constrained_inverse`), zero on the
+/// parameters `n` holds no information on; `None` when singular.
+fn gauge_inverse(n: &DMatrix<f64>, c: &DMatrix<f64>) -> Option<DMatrix<f64>> {
+    let dim = n.nrows();
     if c.ncols() != dim {
         return None;
     }
-    let mut k = DMatrix::zeros(dim + nc, dim + nc);
-    k.view_mut((0, 0), (dim, dim)).copy_from(n);
-    k.view_mut((dim, 0), (nc, dim)).copy_from(c);
-    k.view_mut((0, dim), (dim, nc)).copy_from(&c.transpose());
-    // Parameters the normal matrix does not hold (a zero row, e.g. inactive) keep a unit pivot.
-    for i in 0..dim {
-        if n[(i, i)] == 0.0 {
-            k[(i, i)] = 1.0;
-        }
-    }
-    let inv = k.try_inverse()?;
-    let block = inv.view((0, 0), (dim, dim)).into_owned();
-    block.iter().all(|v| v.is_finite()).then_some(block)
+    let active: Vec<bool> = (0..dim).map(|i| n[(i, i)] != 0.0).collect();
+    let inv = constrained_inverse(n, c, &active, &vec![false; dim], true).ok()?;
+    let inv = inv.map(|v| if v.is_nan() { 0.0 } else { v });
+    inv.iter().all(|v| v.is_finite()).then_some(inv)
 }
