@@ -10,17 +10,21 @@ use rayon::prelude::*;
 use super::dynamics::{Linearisation, LinearisationError, linearise};
 use super::nonlinearity::{Probe, SIGMA_POINT, index, navigate_probes, principal_direction};
 use super::norm::{GaussNorm, ScaleMixture};
-use super::sources::{Calibration, calibration_with, nominal_errors, nominal_parameters, reference, truths};
+use super::sources::{calibration_with, nominal_errors, nominal_parameters, reference, truths};
 use crate::calib::params::PER_ACCEL;
 use crate::config::calibration::Estimator;
 use crate::mc::Cell;
 use crate::mc::config::Compensation;
 use crate::nav::MotionGrid;
+use crate::nav::lanes::LANES;
 use crate::rng::trial_rng;
 
 /// The nonlinearity index at or below which a row is `linear` (LinCov stands by its number).
 /// Calibrated on the comparisons with the Monte Carlo in docs/lincov.md.
 pub const LINEAR_THRESHOLD: f64 = 0.1;
+
+/// Truths the `true` compensation's navigation is linearised again at, for its index.
+pub const NOISE_TRUTHS: usize = 8;
 
 /// Salt of the streams of the mixture's random rotations.
 const ROTATION_SALT: u64 = 0x6c69_6e63_6f76_726f;
@@ -274,7 +278,449 @@ fn random_rotation(seed: u64, m: usize) -> Rotation3<f64> {
     UnitQuaternion::from_quaternion(nalgebra::Quaternion::from_vector(v)).to_rotation_matrix()
 }
 
+/// What the cell's compensations share: the cell, its metric blocks and the settings.
+struct Context<'a> {
+    cell: &'a Cell,
+    blocks: Vec<Vec<Block>>,
+    horizons_s: &'a [f64],
+    seed: u64,
+    settings: &'a Settings,
+    grid: Option<&'a Arc<MotionGrid>>,
+    density: f64,
+    noise_var: f64,
+}
+
+/// A sigma-point probe's navigation and what it was aimed at.
+struct ProbeBlock {
+    /// The metric it was aimed at (`usize::MAX`: the centre, serving every metric).
+    metric: usize,
+    /// The horizon it serves (every one where `None`).
+    horizon: Option<usize>,
+    /// The parameter error it navigates with.
+    dx: DVector<f64>,
+}
+
+/// One compensation's distribution, before its rows: the Gaussians (one per kept truth) of every
+/// (horizon, metric) block, and the sigma-point probes navigated.
+struct Prepared {
+    comp: Compensation,
+    /// `parts[component][horizon][metric]`.
+    parts: Vec<Vec<Vec<Part>>>,
+    probes: Vec<ProbeBlock>,
+    /// Per probe, the navigated norms at every horizon (empty without a grid or probes).
+    navigated: Vec<Vec<[f64; 4]>>,
+    /// Per horizon and metric, the unidentifiable parameters that reach it in some component.
+    unbounded: Vec<Vec<Vec<String>>>,
+    /// The component (truth) the sigma-point probes belong to.
+    probe_component: usize,
+    /// For a mixture: per horizon and metric, how far the probed truth's own linearisation moves
+    /// the metric's RMS from the reference's (the sensitivity's change across truths).
+    truth_index: Option<Vec<[f64; 4]>>,
+    excluded: usize,
+}
+
+impl Context<'_> {
+    /// The navigator at the probes (independent navigations, in parallel chunks).
+    fn navigate(&self, probes: &[Probe]) -> Vec<Vec<[f64; 4]>> {
+        let Some(grid) = self.grid else { return vec![] };
+        if probes.is_empty() {
+            return vec![];
+        }
+        let (layout, g) = (&self.cell.layout, self.cell.calibration.gravity_m_s2);
+        // Chunks of two lane sets (each probe's numbers are those it gets navigated alone).
+        let navigated: Vec<Vec<Vec<[f64; 4]>>> =
+            probes.par_chunks(2 * LANES).map(|chunk| navigate_probes(layout, grid, g, chunk)).collect();
+        navigated.into_iter().flatten().collect()
+    }
+
+    fn nominal(&self) -> Prepared {
+        let (cell, settings) = (self.cell, self.settings);
+        let (mean, variance) = nominal_errors(cell);
+        let cov = DMatrix::from_diagonal(&variance);
+        let pc = ParamCov { cov: &cov, block_diagonal: true };
+        let parts = self
+            .blocks
+            .iter()
+            .map(|hb| {
+                hb.iter()
+                    .map(|b| {
+                        let (c, mut shares) = propagate(&b.s, &pc);
+                        let mu = &b.s * &mean;
+                        let mu = Vector3::new(mu[0], mu[1], mu[2]);
+                        for (i, sh) in shares.iter_mut().enumerate() {
+                            let own = Vector3::new(b.s[(0, i)], b.s[(1, i)], b.s[(2, i)]) * mean[i];
+                            *sh += own.dot(&mu);
+                        }
+                        let noise = self.noise_var * b.noise_unit;
+                        Part {
+                            cov: c + noise,
+                            mean: mu,
+                            shares,
+                            fixture: 0.0,
+                            noise: noise.trace(),
+                            unbounded_by: vec![],
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
+        if settings.nonlinearity {
+            let x_nom = nominal_parameters(cell);
+            probes.push(Probe { truth: &x_nom - &mean, compensation: x_nom.clone() });
+            probe_blocks.push(ProbeBlock { metric: usize::MAX, horizon: None, dx: mean.clone() });
+            // The nominal errors are large: each horizon's own principal directions (the last
+            // horizon's need not move an earlier one's metric the most).
+            for (h, hb) in self.blocks.iter().enumerate() {
+                for (m, b) in hb.iter().enumerate() {
+                    if let Some(u) = principal_direction(&b.s, &cov) {
+                        for sign in [1.0, -1.0] {
+                            let dx = &mean + &u * (sign * SIGMA_POINT);
+                            probes.push(Probe { truth: &x_nom - &dx, compensation: x_nom.clone() });
+                            probe_blocks.push(ProbeBlock { metric: m, horizon: Some(h), dx });
+                        }
+                    }
+                }
+            }
+        }
+        self.prepared(Compensation::Nominal, vec![parts], &probes, probe_blocks)
+    }
+
+    fn true_noise(&self) -> Prepared {
+        let p = self.cell.layout.len();
+        let parts = self
+            .blocks
+            .iter()
+            .map(|hb| {
+                hb.iter()
+                    .map(|b| {
+                        let noise = self.noise_var * b.noise_unit;
+                        Part {
+                            cov: noise,
+                            mean: Vector3::zeros(),
+                            shares: vec![0.0; p],
+                            fixture: 0.0,
+                            noise: noise.trace(),
+                            unbounded_by: vec![],
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
+        if self.settings.nonlinearity || self.noise_var == 0.0 {
+            let x_ref = reference(self.cell);
+            probes.push(Probe { truth: x_ref.clone(), compensation: x_ref });
+            probe_blocks.push(ProbeBlock { metric: usize::MAX, horizon: None, dx: DVector::zeros(p) });
+        }
+        let mut prepared = self.prepared(Compensation::True, vec![parts], &probes, probe_blocks);
+        if self.settings.nonlinearity && self.noise_var > 0.0 {
+            prepared.truth_index = self.noise_truth_index();
+        }
+        prepared
+    }
+
+    /// The `true` compensation's truth index: the noise's propagation depends on the true errors
+    /// (a rate error's centripetal feedback goes through the true axes and locations), so the
+    /// navigation is linearised again at [`NOISE_TRUTHS`] of the cell's drawn truths, and per
+    /// horizon and metric the index is the largest `|sqrt(moved / here) - 1|`, `moved` and `here`
+    /// the noise-driven mean square there and at the reference. `None` when no error varies.
+    fn noise_truth_index(&self) -> Option<Vec<[f64; 4]>> {
+        let xs = truths(self.cell, self.seed, NOISE_TRUTHS);
+        if xs.len() < 2 {
+            return None;
+        }
+        let per_truth: Vec<Vec<[f64; 4]>> = xs
+            .par_iter()
+            .map(|x| match linearisation_at(self.cell, x) {
+                Ok(at) => (0..self.blocks.len())
+                    .map(|h| {
+                        std::array::from_fn(|m| {
+                            let here = self.blocks[h][m].noise_unit.trace();
+                            let moved = at.noise_block(h, m).trace();
+                            if here > 0.0 {
+                                ((moved / here).sqrt() - 1.0).abs()
+                            } else if moved > 0.0 {
+                                f64::INFINITY
+                            } else {
+                                0.0
+                            }
+                        })
+                    })
+                    .collect(),
+                Err(_) => vec![[f64::INFINITY; 4]; self.blocks.len()],
+            })
+            .collect();
+        Some(
+            (0..self.blocks.len())
+                .map(|h| std::array::from_fn(|m| per_truth.iter().map(|t| t[h][m]).fold(0.0, f64::max)))
+                .collect(),
+        )
+    }
+
+    /// A compensation of one Gaussian (no truth index, nothing excluded or unbounded).
+    fn prepared(
+        &self,
+        comp: Compensation,
+        parts: Vec<Vec<Vec<Part>>>,
+        probes: &[Probe],
+        probe_blocks: Vec<ProbeBlock>,
+    ) -> Prepared {
+        Prepared {
+            comp,
+            parts,
+            navigated: self.navigate(probes),
+            probes: probe_blocks,
+            unbounded: vec![vec![vec![]; 4]; self.blocks.len()],
+            probe_component: 0,
+            truth_index: None,
+            excluded: 0,
+        }
+    }
+
+    fn estimated(&self) -> Result<Prepared, LincovError> {
+        let (cell, settings, blocks) = (self.cell, self.settings, &self.blocks);
+        let layout = &cell.layout;
+        let horizons = blocks.len();
+        let x_ref = reference(cell);
+        let xs = truths(cell, self.seed, settings.truths.max(1));
+        // One truth (fixed errors): its null directions by eigenvalues, as `gfcal identify`
+        // finds them. A mixture: each truth by Cholesky, its null directions only where that
+        // fails (a truth where the schedule loses a parameter).
+        let single = xs.len() == 1;
+        let target = crate::calib::fisher::Targets::default().si(layout, &x_ref);
+        let perfect = cell.calibration.pose.is_perfect();
+        let limits = small_error_limits(cell);
+        let per_truth: Vec<Option<Vec<Vec<Part>>>> = xs
+            .par_iter()
+            .map(|x| {
+                let cal = calibration_with(cell, x, self.density, single);
+                if leaves_small_error_region(&cal.covariance, &limits) {
+                    return None;
+                }
+                let pc = ParamCov { cov: &cal.covariance, block_diagonal: perfect };
+                let parts = blocks
+                    .iter()
+                    .map(|hb| {
+                        hb.iter()
+                            .map(|b| {
+                                let (c, mut shares) = propagate(&b.s, &pc);
+                                // The fixture's part of each parameter's share is its own source.
+                                let mut fixture = 0.0;
+                                if !perfect {
+                                    let fx = ParamCov { cov: &cal.fixture, block_diagonal: false };
+                                    let (_, fix_shares) = propagate(&b.s, &fx);
+                                    for (s, f) in shares.iter_mut().zip(&fix_shares) {
+                                        *s -= f;
+                                        fixture += f;
+                                    }
+                                }
+                                let noise = self.noise_var * b.noise_unit;
+                                Part {
+                                    cov: c + noise,
+                                    mean: Vector3::zeros(),
+                                    shares,
+                                    fixture,
+                                    noise: noise.trace(),
+                                    unbounded_by: reached_by(&b.s, &cal.null, &target, layout),
+                                }
+                            })
+                            .collect()
+                    })
+                    .collect();
+                Some(parts)
+            })
+            .collect();
+        let excluded = per_truth.iter().filter(|p| p.is_none()).count();
+        let kept: Vec<usize> = (0..xs.len()).filter(|&k| per_truth[k].is_some()).collect();
+        let xs: Vec<DVector<f64>> = kept.iter().map(|&k| xs[k].clone()).collect();
+        let per_truth: Vec<Vec<Vec<Part>>> = per_truth.into_iter().flatten().collect();
+        if per_truth.is_empty() {
+            return Err(LincovError::Unsupported {
+                key: "errors".into(),
+                problem: format!(
+                    "at every one of the {} truths drawn the schedule's Cramer-Rao bound reaches beyond the \
+                     model's small-error region: the calibration is not linear anywhere",
+                    excluded
+                ),
+            });
+        }
+        let mut unbounded: Vec<Vec<Vec<String>>> = vec![vec![vec![]; 4]; horizons];
+        for parts in &per_truth {
+            for (h, hp) in parts.iter().enumerate() {
+                for (m, part) in hp.iter().enumerate() {
+                    for name in &part.unbounded_by {
+                        if !unbounded[h][m].contains(name) {
+                            unbounded[h][m].push(name.clone());
+                        }
+                    }
+                }
+            }
+        }
+        let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
+        let (mut probe_component, mut truth_index, mut navigated) = (0, None, vec![]);
+        if settings.nonlinearity {
+            // Sigma points of the component at the 95th percentile of the last horizon's
+            // position variance (the tail), navigated with its own truth.
+            let mut order: Vec<usize> = (0..per_truth.len()).collect();
+            let size = |k: usize| per_truth[k][horizons - 1][3].cov.trace();
+            order.sort_by(|&a, &b| size(a).total_cmp(&size(b)));
+            let k = order[((order.len() as f64 - 1.0) * 0.95).round() as usize];
+            probe_component = k;
+            // Its covariance again (the truths' are not kept: 1,024 of them are 14 MB).
+            let x_t = &xs[k];
+            let cov = &calibration_with(cell, x_t, self.density, single).covariance;
+            for (m, b) in blocks[horizons - 1].iter().enumerate() {
+                if let Some(u) = principal_direction(&b.s, cov) {
+                    for sign in [1.0, -1.0] {
+                        let dx = &u * (sign * SIGMA_POINT);
+                        probes.push(Probe { truth: x_t.clone(), compensation: x_t + &dx });
+                        probe_blocks.push(ProbeBlock { metric: m, horizon: None, dx });
+                    }
+                }
+            }
+            // The probed truth's own linearisation, beside the navigations of its probes.
+            let relinearised;
+            (relinearised, navigated) =
+                rayon::join(|| (!single).then(|| linearisation_at(cell, x_t)), || self.navigate(&probes));
+            truth_index = relinearised.map(|at| match at {
+                Ok(at) => (0..horizons)
+                    .map(|h| {
+                        std::array::from_fn(|m| {
+                            let s = at.block(h, m);
+                            let moved =
+                                (&s * cov * s.transpose()).trace() + self.noise_var * at.noise_block(h, m).trace();
+                            let here = per_truth[k][h][m].cov.trace();
+                            if here > 0.0 {
+                                ((moved / here).sqrt() - 1.0).abs()
+                            } else if moved > 0.0 {
+                                f64::INFINITY
+                            } else {
+                                0.0
+                            }
+                        })
+                    })
+                    .collect(),
+                Err(_) => vec![[f64::INFINITY; 4]; horizons],
+            });
+        }
+        Ok(Prepared {
+            comp: Compensation::Estimated,
+            parts: per_truth,
+            probes: probe_blocks,
+            navigated,
+            unbounded,
+            probe_component,
+            truth_index,
+            excluded,
+        })
+    }
+
+    /// The row of one horizon and metric.
+    fn row(&self, prep: &Prepared, rotations: &[Rotation3<f64>], h: usize, m: usize) -> MetricResult {
+        let parts = &prep.parts;
+        let components = parts.len();
+        let p = self.cell.layout.len();
+        let first = &parts[0][h][m];
+        let mean_square: f64;
+        let (median, p95, p05);
+        let (mut median_se, mut p95_se) = (0.0, 0.0);
+        // Components where an unidentifiable parameter reaches the metric are infinite: a
+        // quantile at or above the bounded components' weight is then infinite too.
+        let bounded: Vec<usize> = (0..components).filter(|&k| parts[k][h][m].unbounded_by.is_empty()).collect();
+        let weight = bounded.len() as f64 / components as f64;
+        let within = |p: f64| if p < weight { Some(p / weight) } else { None };
+        if bounded.is_empty() {
+            (median, p95, p05) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
+            mean_square = f64::INFINITY;
+        } else if components == 1 {
+            let dist = GaussNorm::new(&first.mean, &first.cov);
+            if dist.is_deterministic() && first.mean == Vector3::zeros() && !prep.navigated.is_empty() {
+                // No parameter error and no noise: the navigator's own integration error.
+                let e = prep.navigated[0][h][m];
+                (median, p95, p05) = (e, e, e);
+            } else {
+                (median, p95, p05) = (dist.quantile(0.5), dist.quantile(0.95), dist.quantile(0.05));
+            }
+            mean_square = dist.mean_square();
+        } else {
+            let mut mix = ScaleMixture::default();
+            for &k in &bounded {
+                mix.add_gaussian(&parts[k][h][m].cov, &rotations[k], 1.0);
+            }
+            let q = |p: f64| within(p).map_or((f64::INFINITY, 0.0), |p| mix.quantile_with_error(p));
+            ((median, median_se), (p95, p95_se)) = (q(0.5), q(0.95));
+            p05 = within(0.05).map_or(f64::INFINITY, |p| mix.quantile(p));
+            mean_square = if bounded.len() < components {
+                f64::INFINITY
+            } else {
+                parts.iter().map(|c| c[h][m].cov.trace()).sum::<f64>() / components as f64
+            };
+        }
+        // Budget: the average over components of each part.
+        let n = components as f64;
+        let mut sums = vec![0.0; p];
+        for c in parts {
+            for (sum, share) in sums.iter_mut().zip(&c[h][m].shares) {
+                *sum += share;
+            }
+        }
+        let mut budget: Vec<(Source, f64)> =
+            sums.iter().enumerate().map(|(i, v)| (Source::Parameter(i), v / n)).collect();
+        budget.push((Source::Fixture, parts.iter().map(|c| c[h][m].fixture).sum::<f64>() / n));
+        budget.push((Source::Noise, parts.iter().map(|c| c[h][m].noise).sum::<f64>() / n));
+        // Nonlinearity: the probes of this metric (and the centre's, for a mean), against the
+        // probed component's spread at this horizon.
+        let probe_scale = SIGMA_POINT * largest_eigenvalue(&parts[prep.probe_component][h][m].cov).sqrt();
+        let mut nl = 0.0_f64;
+        let mut have = false;
+        for (k, probe) in prep.probes.iter().enumerate() {
+            if prep.navigated.is_empty()
+                || (probe.metric != m && probe.metric != usize::MAX)
+                || probe.horizon.is_some_and(|ph| ph != h)
+            {
+                continue;
+            }
+            let lin_norm = (&self.blocks[h][m].s * &probe.dx).norm();
+            if probe.metric == usize::MAX && lin_norm == 0.0 {
+                continue;
+            }
+            have = true;
+            nl = nl.max(index(prep.navigated[k][h][m], lin_norm, probe_scale));
+        }
+        if let Some(t) = &prep.truth_index {
+            nl = nl.max(t[h][m]);
+            have = true;
+        }
+        let nonlinearity = if have {
+            nl
+        } else if self.settings.nonlinearity {
+            0.0
+        } else {
+            f64::NAN
+        };
+        MetricResult {
+            compensation: prep.comp,
+            metric: m,
+            horizon_s: self.horizons_s[h],
+            median,
+            p95,
+            p05,
+            rms: mean_square.sqrt(),
+            median_se,
+            p95_se,
+            components,
+            unbounded_by: prep.unbounded[h][m].clone(),
+            budget,
+            nonlinearity,
+            linear: mean_square.is_finite() && nonlinearity <= LINEAR_THRESHOLD,
+        }
+    }
+}
+
 /// Analyses one cell (see the module docs of [`super`]). `lin` is the cell's linearisation.
+/// The compensations, the truths of a mixture, the probes' navigations and the rows run in
+/// parallel; every number is a function of the cell and seed alone.
 pub fn analyse_cell(
     cell: &Cell,
     lin: &Linearisation,
@@ -283,329 +729,41 @@ pub fn analyse_cell(
     grid: Option<&Arc<MotionGrid>>,
 ) -> Result<CellResult, LincovError> {
     check(cell)?;
-    let layout = &cell.layout;
-    let p = layout.len();
     let nav = &cell.navigation;
     let horizons = lin.horizons_s.len();
     let density = cell.noise.white.density_m_s2_per_sqrt_hz();
-    let noise_var = if nav.noise { density * density } else { 0.0 };
-    let blocks: Vec<Vec<Block>> = (0..horizons)
-        .map(|h| (0..4).map(|m| Block { s: lin.block(h, m), noise_unit: lin.noise_block(h, m) }).collect())
-        .collect();
-    let x_ref = reference(cell);
-    let g = cell.calibration.gravity_m_s2;
+    let ctx = Context {
+        cell,
+        blocks: (0..horizons)
+            .map(|h| (0..4).map(|m| Block { s: lin.block(h, m), noise_unit: lin.noise_block(h, m) }).collect())
+            .collect(),
+        horizons_s: &lin.horizons_s,
+        seed,
+        settings,
+        grid,
+        density,
+        noise_var: if nav.noise { density * density } else { 0.0 },
+    };
+    let prepared: Vec<Prepared> = nav
+        .compensations
+        .par_iter()
+        .map(|comp| match comp {
+            Compensation::Nominal => Ok(ctx.nominal()),
+            Compensation::True => Ok(ctx.true_noise()),
+            Compensation::Estimated => ctx.estimated(),
+        })
+        .collect::<Result<_, _>>()?;
     let mut rows = Vec::new();
-    let mut excluded = 0;
-    for &comp in &nav.compensations {
-        // Per component (truth): the parts of every (horizon, metric) block, and the sigma-point
-        // probes for the nonlinearity index.
-        let mut probes: Vec<Probe> = Vec::new();
-        // Per probe: the metric it was aimed at, the horizon it serves (all where `None`), dx.
-        let mut probe_blocks: Vec<(usize, Option<usize>, DVector<f64>)> = Vec::new();
-        let mut unbounded: Vec<Vec<Vec<String>>> = vec![vec![vec![]; 4]; horizons];
-        // The component (truth) the sigma-point probes belong to.
-        let mut probe_component = 0;
-        // For a mixture: per horizon and metric, how far the probed truth's own linearisation
-        // moves the metric's RMS from the reference's (the sensitivity's change across truths).
-        let mut truth_index: Option<Vec<[f64; 4]>> = None;
-        let (parts, components): (Vec<Vec<Vec<Part>>>, usize) = match comp {
-            Compensation::Nominal => {
-                let (mean, variance) = nominal_errors(cell);
-                let cov = DMatrix::from_diagonal(&variance);
-                let pc = ParamCov { cov: &cov, block_diagonal: true };
-                let parts = blocks
-                    .iter()
-                    .map(|hb| {
-                        hb.iter()
-                            .map(|b| {
-                                let (c, mut shares) = propagate(&b.s, &pc);
-                                let mu = &b.s * &mean;
-                                let mu = Vector3::new(mu[0], mu[1], mu[2]);
-                                for (i, sh) in shares.iter_mut().enumerate() {
-                                    let own = Vector3::new(b.s[(0, i)], b.s[(1, i)], b.s[(2, i)]) * mean[i];
-                                    *sh += own.dot(&mu);
-                                }
-                                let noise = noise_var * b.noise_unit;
-                                Part {
-                                    cov: c + noise,
-                                    mean: mu,
-                                    shares,
-                                    fixture: 0.0,
-                                    noise: noise.trace(),
-                                    unbounded_by: vec![],
-                                }
-                            })
-                            .collect()
-                    })
-                    .collect();
-                if settings.nonlinearity {
-                    let x_nom = nominal_parameters(cell);
-                    probes.push(Probe { truth: &x_nom - &mean, compensation: x_nom.clone() });
-                    probe_blocks.push((usize::MAX, None, mean.clone()));
-                    // The nominal errors are large: each horizon's own principal directions (the
-                    // last horizon's need not move an earlier one's metric the most).
-                    for (h, hb) in blocks.iter().enumerate() {
-                        for (m, b) in hb.iter().enumerate() {
-                            if let Some(u) = principal_direction(&b.s, &cov) {
-                                for sign in [1.0, -1.0] {
-                                    let dx = &mean + &u * (sign * SIGMA_POINT);
-                                    probes.push(Probe { truth: &x_nom - &dx, compensation: x_nom.clone() });
-                                    probe_blocks.push((m, Some(h), dx));
-                                }
-                            }
-                        }
-                    }
-                }
-                (vec![parts], 1)
-            }
-            Compensation::True => {
-                let parts = blocks
-                    .iter()
-                    .map(|hb| {
-                        hb.iter()
-                            .map(|b| {
-                                let noise = noise_var * b.noise_unit;
-                                Part {
-                                    cov: noise,
-                                    mean: Vector3::zeros(),
-                                    shares: vec![0.0; p],
-                                    fixture: 0.0,
-                                    noise: noise.trace(),
-                                    unbounded_by: vec![],
-                                }
-                            })
-                            .collect()
-                    })
-                    .collect();
-                if settings.nonlinearity || noise_var == 0.0 {
-                    probes.push(Probe { truth: x_ref.clone(), compensation: x_ref.clone() });
-                    probe_blocks.push((usize::MAX, None, DVector::zeros(p)));
-                }
-                (vec![parts], 1)
-            }
-            Compensation::Estimated => {
-                let xs = truths(cell, seed, settings.truths.max(1));
-                // One truth (fixed errors): its null directions by eigenvalues, as `gfcal identify`
-                // finds them. A mixture: each truth by Cholesky, its null directions only where that
-                // fails (a truth where the schedule loses a parameter).
-                let single = xs.len() == 1;
-                let target = crate::calib::fisher::Targets::default().si(layout, &x_ref);
-                let perfect = cell.calibration.pose.is_perfect();
-                let limits = small_error_limits(cell);
-                let per_truth: Vec<Option<(Vec<Vec<Part>>, Calibration)>> = xs
-                    .par_iter()
-                    .map(|x| {
-                        let cal = calibration_with(cell, x, density, single);
-                        if leaves_small_error_region(&cal.covariance, &limits) {
-                            return None;
-                        }
-                        let pc = ParamCov { cov: &cal.covariance, block_diagonal: perfect };
-                        let parts = blocks
-                            .iter()
-                            .map(|hb| {
-                                hb.iter()
-                                    .map(|b| {
-                                        let (c, mut shares) = propagate(&b.s, &pc);
-                                        // The fixture's part of each parameter's share is its own source.
-                                        let mut fixture = 0.0;
-                                        if !perfect {
-                                            let fx = ParamCov { cov: &cal.fixture, block_diagonal: false };
-                                            let (_, fix_shares) = propagate(&b.s, &fx);
-                                            for (s, f) in shares.iter_mut().zip(&fix_shares) {
-                                                *s -= f;
-                                                fixture += f;
-                                            }
-                                        }
-                                        let noise = noise_var * b.noise_unit;
-                                        Part {
-                                            cov: c + noise,
-                                            mean: Vector3::zeros(),
-                                            shares,
-                                            fixture,
-                                            noise: noise.trace(),
-                                            unbounded_by: reached_by(&b.s, &cal.null, &target, layout),
-                                        }
-                                    })
-                                    .collect()
-                            })
-                            .collect();
-                        Some((parts, cal))
-                    })
-                    .collect();
-                excluded = per_truth.iter().filter(|p| p.is_none()).count();
-                let kept: Vec<usize> = (0..xs.len()).filter(|&k| per_truth[k].is_some()).collect();
-                let xs: Vec<DVector<f64>> = kept.iter().map(|&k| xs[k].clone()).collect();
-                let per_truth: Vec<(Vec<Vec<Part>>, Calibration)> = per_truth.into_iter().flatten().collect();
-                if per_truth.is_empty() {
-                    return Err(LincovError::Unsupported {
-                        key: "errors".into(),
-                        problem: format!(
-                            "at every one of the {} truths drawn the schedule's Cramer-Rao bound reaches beyond the \
-                             model's small-error region: the calibration is not linear anywhere",
-                            excluded
-                        ),
-                    });
-                }
-                for (parts, _) in &per_truth {
-                    for (h, hp) in parts.iter().enumerate() {
-                        for (m, part) in hp.iter().enumerate() {
-                            for name in &part.unbounded_by {
-                                if !unbounded[h][m].contains(name) {
-                                    unbounded[h][m].push(name.clone());
-                                }
-                            }
-                        }
-                    }
-                }
-                if settings.nonlinearity {
-                    // Sigma points of the component at the 95th percentile of the last horizon's
-                    // position variance (the tail), navigated with its own truth.
-                    let mut order: Vec<usize> = (0..per_truth.len()).collect();
-                    let size = |k: usize| per_truth[k].0[horizons - 1][3].cov.trace();
-                    order.sort_by(|&a, &b| size(a).total_cmp(&size(b)));
-                    let k = order[((order.len() as f64 - 1.0) * 0.95).round() as usize];
-                    probe_component = k;
-                    let (x_t, cov) = (&xs[k], &per_truth[k].1.covariance);
-                    if !single {
-                        truth_index = Some(match linearisation_at(cell, x_t) {
-                            Ok(at) => (0..horizons)
-                                .map(|h| {
-                                    std::array::from_fn(|m| {
-                                        let s = at.block(h, m);
-                                        let moved = (&s * cov * s.transpose()).trace()
-                                            + noise_var * at.noise_block(h, m).trace();
-                                        let here = per_truth[k].0[h][m].cov.trace();
-                                        if here > 0.0 {
-                                            ((moved / here).sqrt() - 1.0).abs()
-                                        } else if moved > 0.0 {
-                                            f64::INFINITY
-                                        } else {
-                                            0.0
-                                        }
-                                    })
-                                })
-                                .collect(),
-                            Err(_) => vec![[f64::INFINITY; 4]; horizons],
-                        });
-                    }
-                    for (m, b) in blocks[horizons - 1].iter().enumerate() {
-                        if let Some(u) = principal_direction(&b.s, cov) {
-                            for sign in [1.0, -1.0] {
-                                let dx = &u * (sign * SIGMA_POINT);
-                                probes.push(Probe { truth: x_t.clone(), compensation: x_t + &dx });
-                                probe_blocks.push((m, None, dx));
-                            }
-                        }
-                    }
-                }
-                let components = per_truth.len();
-                (per_truth.into_iter().map(|(parts, _)| parts).collect(), components)
-            }
-        };
+    for prep in &prepared {
         // One random rotation per component (the directions its Gaussian is read along).
+        let components = prep.parts.len();
         let rotations: Vec<Rotation3<f64>> =
             if components > 1 { (0..components).map(|k| random_rotation(seed, k)).collect() } else { vec![] };
-        // The navigator at the probes (one pass for all of them).
-        let navigated = match (grid, probes.is_empty()) {
-            (Some(grid), false) => navigate_probes(layout, grid, g, &probes),
-            _ => vec![],
-        };
-        for h in 0..horizons {
-            for m in 0..4 {
-                let first = &parts[0][h][m];
-                let mean_square: f64;
-                let (median, p95, p05);
-                let (mut median_se, mut p95_se) = (0.0, 0.0);
-                // Components where an unidentifiable parameter reaches the metric are infinite: a
-                // quantile at or above the bounded components' weight is then infinite too.
-                let bounded: Vec<usize> = (0..components).filter(|&k| parts[k][h][m].unbounded_by.is_empty()).collect();
-                let weight = bounded.len() as f64 / components as f64;
-                let within = |p: f64| if p < weight { Some(p / weight) } else { None };
-                if bounded.is_empty() {
-                    (median, p95, p05) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
-                    mean_square = f64::INFINITY;
-                } else if components == 1 {
-                    let dist = GaussNorm::new(&first.mean, &first.cov);
-                    if dist.is_deterministic() && first.mean == Vector3::zeros() && !navigated.is_empty() {
-                        // No parameter error and no noise: the navigator's own integration error.
-                        let e = navigated[0][h][m];
-                        (median, p95, p05) = (e, e, e);
-                    } else {
-                        (median, p95, p05) = (dist.quantile(0.5), dist.quantile(0.95), dist.quantile(0.05));
-                    }
-                    mean_square = dist.mean_square();
-                } else {
-                    let mut mix = ScaleMixture::default();
-                    for &k in &bounded {
-                        mix.add_gaussian(&parts[k][h][m].cov, &rotations[k], 1.0);
-                    }
-                    let q = |p: f64| within(p).map_or((f64::INFINITY, 0.0), |p| mix.quantile_with_error(p));
-                    ((median, median_se), (p95, p95_se)) = (q(0.5), q(0.95));
-                    p05 = within(0.05).map_or(f64::INFINITY, |p| mix.quantile(p));
-                    mean_square = if bounded.len() < components {
-                        f64::INFINITY
-                    } else {
-                        parts.iter().map(|c| c[h][m].cov.trace()).sum::<f64>() / components as f64
-                    };
-                }
-                // Budget: the average over components of each part.
-                let n = components as f64;
-                let mut sums = vec![0.0; p];
-                for c in &parts {
-                    for (sum, share) in sums.iter_mut().zip(&c[h][m].shares) {
-                        *sum += share;
-                    }
-                }
-                let mut budget: Vec<(Source, f64)> =
-                    sums.iter().enumerate().map(|(i, v)| (Source::Parameter(i), v / n)).collect();
-                budget.push((Source::Fixture, parts.iter().map(|c| c[h][m].fixture).sum::<f64>() / n));
-                budget.push((Source::Noise, parts.iter().map(|c| c[h][m].noise).sum::<f64>() / n));
-                // Nonlinearity: the probes of this metric (and the centre's, for a mean), against
-                // the probed component's spread at this horizon.
-                let probe_scale = SIGMA_POINT * largest_eigenvalue(&parts[probe_component][h][m].cov).sqrt();
-                let mut nl = 0.0_f64;
-                let mut have = false;
-                for (k, (pm, ph, dx)) in probe_blocks.iter().enumerate() {
-                    if navigated.is_empty() || (*pm != m && *pm != usize::MAX) || ph.is_some_and(|ph| ph != h) {
-                        continue;
-                    }
-                    let lin_norm = (&blocks[h][m].s * dx).norm();
-                    if *pm == usize::MAX && lin_norm == 0.0 {
-                        continue;
-                    }
-                    have = true;
-                    nl = nl.max(index(navigated[k][h][m], lin_norm, probe_scale));
-                }
-                if let Some(t) = &truth_index {
-                    nl = nl.max(t[h][m]);
-                    have = true;
-                }
-                let nonlinearity = if have {
-                    nl
-                } else if settings.nonlinearity {
-                    0.0
-                } else {
-                    f64::NAN
-                };
-                rows.push(MetricResult {
-                    compensation: comp,
-                    metric: m,
-                    horizon_s: lin.horizons_s[h],
-                    median,
-                    p95,
-                    p05,
-                    rms: mean_square.sqrt(),
-                    median_se,
-                    p95_se,
-                    components,
-                    unbounded_by: unbounded[h][m].clone(),
-                    budget,
-                    nonlinearity,
-                    linear: mean_square.is_finite() && nonlinearity <= LINEAR_THRESHOLD,
-                });
-            }
-        }
+        let mine: Vec<MetricResult> =
+            (0..horizons * 4).into_par_iter().map(|hm| ctx.row(prep, &rotations, hm / 4, hm % 4)).collect();
+        rows.extend(mine);
     }
+    let excluded = prepared.iter().map(|p| p.excluded).sum();
     Ok(CellResult { cell: cell.index, rows, excluded_truths: excluded })
 }
 
