@@ -93,6 +93,7 @@ pub fn lincov(a: LincovArgs<'_>) -> anyhow::Result<()> {
         "cells": cfg.cells.len(),
         "factor_keys": cfg.factor_keys,
         "truths": a.truths,
+        "refused_fraction": results.iter().map(|c| c.refused_fraction).collect::<Vec<_>>(),
         "nonlinearity_threshold": gfcal::lincov::analysis::LINEAR_THRESHOLD,
         "compute_s": elapsed.as_secs_f64(),
         "started": started,
@@ -105,11 +106,15 @@ pub fn lincov(a: LincovArgs<'_>) -> anyhow::Result<()> {
         cfg.cells.len(),
         elapsed.as_secs_f64()
     );
-    for c in results.iter().filter(|c| c.excluded_truths > 0) {
+    for c in results.iter().filter(|c| c.refused_fraction >= 5e-4) {
         println!(
-            "cell {}: {} of {} truths left out of the estimated compensation's mixture (their Cramer-Rao bound reaches \
-             beyond the model's small-error region, where the Monte Carlo's fits are refused)",
-            c.cell, c.excluded_truths, a.truths
+            "cell {}: the estimated compensation's fit leaves the model's small-error region with chance {:.1}% over \
+             the {} truths drawn (the Monte Carlo refuses those fits; each truth is weighted by the chance its fit \
+             stays, and keeps the fits that stay; {} truths without any chance left out)",
+            c.cell,
+            100.0 * c.refused_fraction,
+            a.truths,
+            c.excluded_truths
         );
     }
     if cfg.cells.len() <= 8 {

@@ -87,9 +87,12 @@ pub struct MetricResult {
 pub struct CellResult {
     pub cell: usize,
     pub rows: Vec<MetricResult>,
-    /// Truths of the estimated compensation's mixture left out: their Cramer-Rao bound reaches
-    /// beyond the model's small-error region, where the Monte Carlo's fits are refused.
+    /// Truths of the estimated compensation's mixture left out: a fit at them cannot stay in the
+    /// model's small-error region (where the Monte Carlo's fits are refused) at all.
     pub excluded_truths: usize,
+    /// The chance that the estimated compensation's fit leaves the small-error region, over the
+    /// truths drawn (the fraction of its fits the Monte Carlo would refuse; 0 without it).
+    pub refused_fraction: f64,
 }
 
 /// Why a cell cannot be analysed.
@@ -306,6 +309,9 @@ struct Prepared {
     comp: Compensation,
     /// `parts[component][horizon][metric]`.
     parts: Vec<Vec<Vec<Part>>>,
+    /// Per component, its weight: the chance that a fit at its truth stays in the model's
+    /// small-error region (1 for one Gaussian).
+    weights: Vec<f64>,
     probes: Vec<ProbeBlock>,
     /// Per probe, the navigated norms at every horizon (empty without a grid or probes).
     navigated: Vec<Vec<[f64; 4]>>,
@@ -317,6 +323,8 @@ struct Prepared {
     /// the metric's RMS from the reference's (the sensitivity's change across truths).
     truth_index: Option<Vec<[f64; 4]>>,
     excluded: usize,
+    /// The chance, over the truths drawn, that a fit leaves the small-error region.
+    refused_fraction: f64,
 }
 
 impl Context<'_> {
@@ -468,6 +476,7 @@ impl Context<'_> {
     ) -> Prepared {
         Prepared {
             comp,
+            weights: vec![1.0; parts.len()],
             parts,
             navigated: self.navigate(probes),
             probes: probe_blocks,
@@ -475,6 +484,7 @@ impl Context<'_> {
             probe_component: 0,
             truth_index: None,
             excluded: 0,
+            refused_fraction: 0.0,
         }
     }
 
@@ -490,12 +500,13 @@ impl Context<'_> {
         let single = xs.len() == 1;
         let target = crate::calib::fisher::Targets::default().si(layout, &x_ref);
         let perfect = cell.calibration.pose.is_perfect();
-        let limits = small_error_limits(cell);
-        let per_truth: Vec<Option<Vec<Vec<Part>>>> = xs
+        let bounds = small_error_bounds(cell);
+        let per_truth: Vec<Option<(Vec<Vec<Part>>, f64)>> = xs
             .par_iter()
             .map(|x| {
-                let cal = calibration_with(cell, x, self.density, single);
-                if leaves_small_error_region(&cal.covariance, &limits) {
+                let mut cal = calibration_with(cell, x, self.density, single);
+                let weight = stay_in_small_error_region(&mut cal.covariance, x, &bounds);
+                if weight.is_nan() || weight <= 0.0 {
                     return None;
                 }
                 let pc = ParamCov { cov: &cal.covariance, block_diagonal: perfect };
@@ -528,13 +539,14 @@ impl Context<'_> {
                             .collect()
                     })
                     .collect();
-                Some(parts)
+                Some((parts, weight))
             })
             .collect();
         let excluded = per_truth.iter().filter(|p| p.is_none()).count();
         let kept: Vec<usize> = (0..xs.len()).filter(|&k| per_truth[k].is_some()).collect();
         let xs: Vec<DVector<f64>> = kept.iter().map(|&k| xs[k].clone()).collect();
-        let per_truth: Vec<Vec<Vec<Part>>> = per_truth.into_iter().flatten().collect();
+        let (per_truth, weights): (Vec<Vec<Vec<Part>>>, Vec<f64>) = per_truth.into_iter().flatten().unzip();
+        let refused_fraction = 1.0 - weights.iter().sum::<f64>() / (kept.len() + excluded) as f64;
         if per_truth.is_empty() {
             return Err(LincovError::Unsupported {
                 key: "errors".into(),
@@ -569,7 +581,9 @@ impl Context<'_> {
             probe_component = k;
             // Its covariance again (the truths' are not kept: 1,024 of them are 14 MB).
             let x_t = &xs[k];
-            let cov = &calibration_with(cell, x_t, self.density, single).covariance;
+            let mut cov = calibration_with(cell, x_t, self.density, single).covariance;
+            stay_in_small_error_region(&mut cov, x_t, &bounds);
+            let cov = &cov;
             for (m, b) in blocks[horizons - 1].iter().enumerate() {
                 if let Some(u) = principal_direction(&b.s, cov) {
                     for sign in [1.0, -1.0] {
@@ -607,12 +621,14 @@ impl Context<'_> {
         Ok(Prepared {
             comp: Compensation::Estimated,
             parts: per_truth,
+            weights,
             probes: probe_blocks,
             navigated,
             unbounded,
             probe_component,
             truth_index,
             excluded,
+            refused_fraction,
         })
     }
 
@@ -628,7 +644,9 @@ impl Context<'_> {
         // Components where an unidentifiable parameter reaches the metric are infinite: a
         // quantile at or above the bounded components' weight is then infinite too.
         let bounded: Vec<usize> = (0..components).filter(|&k| parts[k][h][m].unbounded_by.is_empty()).collect();
-        let weight = bounded.len() as f64 / components as f64;
+        let w = &prep.weights;
+        let total_weight: f64 = w.iter().sum();
+        let weight = bounded.iter().map(|&k| w[k]).sum::<f64>() / total_weight;
         let within = |p: f64| if p < weight { Some(p / weight) } else { None };
         if bounded.is_empty() {
             (median, p95, p05) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
@@ -646,7 +664,7 @@ impl Context<'_> {
         } else {
             let mut mix = ScaleMixture::default();
             for &k in &bounded {
-                mix.add_gaussian(&parts[k][h][m].cov, &rotations[k], 1.0);
+                mix.add_gaussian(&parts[k][h][m].cov, &rotations[k], w[k]);
             }
             let q = |p: f64| within(p).map_or((f64::INFINITY, 0.0), |p| mix.quantile_with_error(p));
             ((median, median_se), (p95, p95_se)) = (q(0.5), q(0.95));
@@ -654,21 +672,21 @@ impl Context<'_> {
             mean_square = if bounded.len() < components {
                 f64::INFINITY
             } else {
-                parts.iter().map(|c| c[h][m].cov.trace()).sum::<f64>() / components as f64
+                parts.iter().zip(w).map(|(c, w)| w * c[h][m].cov.trace()).sum::<f64>() / total_weight
             };
         }
-        // Budget: the average over components of each part.
-        let n = components as f64;
+        // Budget: the (weighted) average over components of each part.
+        let n = total_weight;
         let mut sums = vec![0.0; p];
-        for c in parts {
+        for (c, w) in parts.iter().zip(w) {
             for (sum, share) in sums.iter_mut().zip(&c[h][m].shares) {
-                *sum += share;
+                *sum += w * share;
             }
         }
         let mut budget: Vec<(Source, f64)> =
             sums.iter().enumerate().map(|(i, v)| (Source::Parameter(i), v / n)).collect();
-        budget.push((Source::Fixture, parts.iter().map(|c| c[h][m].fixture).sum::<f64>() / n));
-        budget.push((Source::Noise, parts.iter().map(|c| c[h][m].noise).sum::<f64>() / n));
+        budget.push((Source::Fixture, parts.iter().zip(w).map(|(c, w)| w * c[h][m].fixture).sum::<f64>() / n));
+        budget.push((Source::Noise, parts.iter().zip(w).map(|(c, w)| w * c[h][m].noise).sum::<f64>() / n));
         // Nonlinearity: the probes of this metric (and the centre's, for a mean), against the
         // probed component's spread at this horizon.
         let probe_scale = SIGMA_POINT * largest_eigenvalue(&parts[prep.probe_component][h][m].cov).sqrt();
@@ -764,24 +782,104 @@ pub fn analyse_cell(
         rows.extend(mine);
     }
     let excluded = prepared.iter().map(|p| p.excluded).sum();
-    Ok(CellResult { cell: cell.index, rows, excluded_truths: excluded })
+    let refused_fraction = prepared.iter().map(|p| p.refused_fraction).sum();
+    Ok(CellResult { cell: cell.index, rows, excluded_truths: excluded, refused_fraction })
 }
 
-/// The Cramer-Rao sigma beyond which a fit is taken to leave the model's small-error region
-/// (`calib::estimate::outside_small_error_region`, which the Monte Carlo's fits are refused by):
-/// half the region, so that the fit's 2-sigma interval reaches its edge. Per parameter, SI
-/// (infinite for scale factors and biases, which have no region).
-fn small_error_limits(cell: &Cell) -> Vec<f64> {
+/// The model's small-error region (`calib::estimate::outside_small_error_region`, which the
+/// Monte Carlo's fits are refused by): per parameter the largest magnitude inside, SI (infinite
+/// for scale factors and biases, which have no bound).
+fn small_error_bounds(cell: &Cell) -> Vec<f64> {
     let extent_m = cell.array.accelerometers().iter().map(|a| a.position_m.norm()).fold(0.0, f64::max);
     (0..cell.layout.len())
         .map(|i| match cell.layout.kind(i) {
-            crate::calib::ParamKind::Location(_) => 0.5 * extent_m,
-            crate::calib::ParamKind::Misalignment(_) => 0.5 * crate::calib::estimate::SMALL_ERROR_ANGLE_RAD,
+            crate::calib::ParamKind::Location(_) => extent_m,
+            crate::calib::ParamKind::Misalignment(_) => crate::calib::estimate::SMALL_ERROR_ANGLE_RAD,
             _ => f64::INFINITY,
         })
         .collect()
 }
 
-fn leaves_small_error_region(cov: &DMatrix<f64>, limits: &[f64]) -> bool {
-    limits.iter().enumerate().any(|(i, l)| cov[(i, i)].max(0.0).sqrt() > *l)
+/// The chance that a fit at truth `x`, distributed `N(x, cov)`, stays inside the small-error
+/// region `|x_i| <= bounds[i]` (the parameters taken as independent), and `cov` turned into the
+/// covariance of the fits that stay: each parameter's standard deviation scaled by that of a
+/// normal truncated at the bounds (correlations kept). Untouched (weight exactly 1) where every
+/// bound is far out in its parameter's tail.
+fn stay_in_small_error_region(cov: &mut DMatrix<f64>, x: &DVector<f64>, bounds: &[f64]) -> f64 {
+    use statrs::function::erf::erfc;
+    let phi = |z: f64| (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt();
+    let cdf = |z: f64| 0.5 * erfc(-z / std::f64::consts::SQRT_2);
+    let mut weight = 1.0;
+    let mut scale = vec![1.0; bounds.len()];
+    for (i, &r) in bounds.iter().enumerate() {
+        if !r.is_finite() {
+            continue;
+        }
+        let sigma = cov[(i, i)].max(0.0).sqrt();
+        if !sigma.is_finite() {
+            return 0.0;
+        }
+        if sigma == 0.0 {
+            continue;
+        }
+        let (a, b) = ((-r - x[i]) / sigma, (r - x[i]) / sigma);
+        let inside = cdf(b) - cdf(a);
+        if inside <= 0.0 {
+            return 0.0;
+        }
+        weight *= inside;
+        let (pa, pb) = (phi(a), phi(b));
+        let kept = 1.0 + (a * pa - b * pb) / inside - ((pa - pb) / inside).powi(2);
+        scale[i] = kept.max(0.0).sqrt();
+    }
+    if scale.iter().any(|&s| s != 1.0) {
+        for r in 0..cov.nrows() {
+            for c in 0..cov.ncols() {
+                cov[(r, c)] *= scale[r] * scale[c];
+            }
+        }
+    }
+    weight
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The chance of staying in the region and the kept fits' spread against samples of a
+    /// normal (an independent generator): a location of sigma 50 mm at truth 10 mm in a region of
+    /// +-60 mm, beside a misalignment far inside its bound and a bias without one.
+    #[test]
+    fn the_chance_of_staying_and_the_truncated_spread_match_samples() {
+        let (sigma, truth, bound) = (0.05, 0.01, 0.06);
+        let mut cov = DMatrix::from_diagonal(&DVector::from_vec(vec![sigma * sigma, 1e-8, 4.0]));
+        cov[(0, 1)] = 0.3 * sigma * 1e-4;
+        cov[(1, 0)] = cov[(0, 1)];
+        let x = DVector::from_vec(vec![truth, 0.0, 0.0]);
+        let bounds = [bound, 0.1, f64::INFINITY];
+        let before = cov.clone();
+        let weight = stay_in_small_error_region(&mut cov, &x, &bounds);
+        let mut rng = trial_rng(7, 0);
+        let n = 2_000_000;
+        let kept: Vec<f64> = (0..n)
+            .map(|_| truth + sigma * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng))
+            .filter(|v| v.abs() <= bound)
+            .collect();
+        let share = kept.len() as f64 / n as f64;
+        let mean = kept.iter().sum::<f64>() / kept.len() as f64;
+        let sd = (kept.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / kept.len() as f64).sqrt();
+        // Binomial and sampling errors of 2e6 draws: under 1e-3 for both.
+        assert!((weight - share).abs() < 1e-3, "weight {weight} vs sampled {share}");
+        let scale = cov[(0, 0)].sqrt() / sigma;
+        assert!((scale - sd / sigma).abs() < 2e-3, "kept sd {scale} vs sampled {}", sd / sigma);
+        // Correlations kept; the parameter far inside its bound and the unbounded one untouched.
+        assert!((cov[(0, 1)] / before[(0, 1)] - scale).abs() < 1e-12);
+        assert_eq!(cov[(1, 1)], before[(1, 1)]);
+        assert_eq!(cov[(2, 2)], before[(2, 2)]);
+        // A bound far out in the tail leaves the covariance exactly as it was, weight exactly 1.
+        let mut far = before.clone();
+        let w = stay_in_small_error_region(&mut far, &x, &[100.0, 0.1, f64::INFINITY]);
+        assert_eq!(w, 1.0);
+        assert_eq!(far, before);
+    }
 }

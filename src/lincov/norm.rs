@@ -419,8 +419,8 @@ pub struct ScaleMixture {
     zero: f64,
     /// `sum weight A`, for the mean square.
     weighted_scale: f64,
-    /// The scales of each Gaussian added, for the quantiles' standard errors.
-    groups: Vec<[f64; 6]>,
+    /// The scales of each Gaussian added and its weight, for the quantiles' standard errors.
+    groups: Vec<([f64; 6], f64)>,
 }
 
 impl ScaleMixture {
@@ -433,13 +433,14 @@ impl ScaleMixture {
             *g = (w.transpose() * cov * w)[(0, 0)];
             self.add_scale(*g, weight / 6.0);
         }
-        self.groups.push(group);
+        self.groups.push((group, weight));
     }
 
     /// The `p`-quantile of `|x|` and its standard error from the Gaussians' spread (the delta
-    /// method: the standard deviation over the Gaussians of each one's distribution function at
-    /// the quantile, over the square root of their number and the density there). The error of
-    /// a mixture over drawn truths and random directions; 0 for one Gaussian added once.
+    /// method: the weighted standard deviation over the Gaussians of each one's distribution
+    /// function at the quantile, over the square root of their effective number
+    /// `(sum w)^2 / sum w^2` and the density there). The error of a mixture over drawn truths and
+    /// random directions; 0 for one Gaussian added once. With equal weights, the plain formulas.
     pub fn quantile_with_error(&self, p: f64) -> (f64, f64) {
         let q = self.quantile(p);
         let m = self.groups.len();
@@ -451,21 +452,27 @@ impl ScaleMixture {
         // (d/dq P(chi^2_3 <= q^2 / a) = pdf(q^2 / a) 2 q / a), in one pass.
         let mut per = Vec::with_capacity(m);
         let mut density = 0.0;
-        for g in &self.groups {
+        let (mut sum_w, mut sum_w2) = (0.0, 0.0);
+        for (g, w) in &self.groups {
             let mut f = 0.0;
             for a in g {
                 let s = t / a;
                 f += chi2_3_cdf(s);
                 if s.is_finite() {
-                    density += chi2_3_pdf(s) * 2.0 * q / a;
+                    density += w * (chi2_3_pdf(s) * 2.0 * q / a);
                 }
             }
             per.push(f / 6.0);
+            sum_w += w;
+            sum_w2 += w * w;
         }
-        let density = density / (6.0 * m as f64);
-        let mean = per.iter().sum::<f64>() / m as f64;
-        let var = per.iter().map(|f| (f - mean).powi(2)).sum::<f64>() / (m - 1) as f64;
-        if density > 0.0 { (q, (var / m as f64).sqrt() / density) } else { (q, f64::NAN) }
+        let density = density / (6.0 * sum_w);
+        let mean = per.iter().zip(&self.groups).map(|(f, (_, w))| w * f).sum::<f64>() / sum_w;
+        // Unbiased for weights of one: sum w (f - mean)^2 / (m - 1).
+        let var = per.iter().zip(&self.groups).map(|(f, (_, w))| w * (f - mean).powi(2)).sum::<f64>()
+            / (sum_w - sum_w2 / sum_w);
+        let effective = sum_w * sum_w / sum_w2;
+        if density > 0.0 && effective > 1.0 { (q, (var / effective).sqrt() / density) } else { (q, f64::NAN) }
     }
 
     /// Adds `weight` at scale `a` (variance along one direction).

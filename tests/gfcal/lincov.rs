@@ -415,7 +415,12 @@ enum Expect {
 /// LinCov against 20,000 Monte Carlo trials of `text`: the estimated (and `true`) compensation's
 /// rows as `expect` says, most of them `linear` where `well_determined`, and every row of any
 /// compensation that differs by more than 25% flagged.
-fn against_monte_carlo(title: &str, text: &str, expect: Expect, well_determined: bool) {
+fn against_monte_carlo(
+    title: &str,
+    text: &str,
+    expect: Expect,
+    well_determined: bool,
+) -> (Vec<CellResult>, Vec<Comparison>) {
     let cfg = load(text);
     let clock = std::time::Instant::now();
     let results = analyse(&cfg, Settings::default().truths);
@@ -426,7 +431,10 @@ fn against_monte_carlo(title: &str, text: &str, expect: Expect, well_determined:
     let mc_s = clock.elapsed().as_secs_f64();
     print_comparison(title, &cmp);
     for c in &results {
-        eprintln!("  cell {}: {} truths left out of the mixture", c.cell, c.excluded_truths);
+        eprintln!(
+            "  cell {}: {} truths left out of the mixture; a fit leaves the small-error region with chance {:.4}",
+            c.cell, c.excluded_truths, c.refused_fraction
+        );
     }
     let (n, within, linear, unflagged) = tally(&cmp);
     eprintln!(
@@ -447,6 +455,7 @@ fn against_monte_carlo(title: &str, text: &str, expect: Expect, well_determined:
     if well_determined {
         assert!(2 * linear > n, "{title}: most estimated rows linear ({linear} of {n})");
     }
+    (results, cmp)
 }
 
 /// The paper's errors (fixed) on the augmented schedule, 20,000 trials.
@@ -491,11 +500,25 @@ fn lincov_against_20000_trials_with_fixture_error() {
 }
 
 /// The quickstart (the paper's schedule, six weak location components): within 10% or flagged.
+/// Its truths are weighted by the chance that their fit stays in the model's small-error region
+/// (docs/lincov.md): that chance, averaged over the truths, predicts the fraction of fits the
+/// Monte Carlo refuses (within 3 points, written before the run; 6.6% against 6.8% measured), and
+/// with it every estimated row up to 5 s is within 10% of the Monte Carlo (median and p95; 8.1%
+/// at worst measured), where the hard cut it replaced left the p95s 24-30% low.
 #[test]
 #[ignore = "statistical: 20,000 Monte Carlo trials of the quickstart (about a minute)"]
 fn lincov_against_20000_trials_on_the_quickstart() {
-    let text = shipped("quickstart.toml", 20_000, &[]);
-    against_monte_carlo("quickstart, 20,000 trials", &text, Expect::Within10OrFlagged, false);
+    let trials = 20_000;
+    let text = shipped("quickstart.toml", trials, &[]);
+    let (results, cmp) = against_monte_carlo("quickstart, 20,000 trials", &text, Expect::Within10OrFlagged, false);
+    let estimated: Vec<&Comparison> = cmp.iter().filter(|c| c.name.starts_with("estimated_")).collect();
+    let refused = 1.0 - estimated[0].n as f64 / trials as f64;
+    let predicted = results[0].refused_fraction;
+    eprintln!("fits refused: Monte Carlo {refused:.4}, LinCov's mixture {predicted:.4}");
+    assert!((predicted - refused).abs() < 0.03, "refused fits: LinCov {predicted}, Monte Carlo {refused}");
+    for c in estimated.iter().filter(|c| !c.name.ends_with("_at_10s")) {
+        assert!(c.worst_difference() <= 0.10, "{}: median {:.3} p95 {:.3}", c.name, c.median_ratio(), c.p95_ratio());
+    }
 }
 
 /// `gfcal design` with a drift target (configs/hung_lee_2006_drift_design.toml: the estimated
