@@ -106,7 +106,7 @@ pub fn lincov(a: LincovArgs<'_>) -> anyhow::Result<()> {
         cfg.cells.len(),
         elapsed.as_secs_f64()
     );
-    for c in results.iter().filter(|c| c.refused_fraction >= 5e-4) {
+    for c in results.iter().filter(|c| c.refused_fraction >= 5e-4 || c.excluded_truths > 0) {
         println!(
             "cell {}: the estimated compensation's fit leaves the model's small-error region with chance {:.1}% over \
              the {} truths drawn (the Monte Carlo refuses those fits; each truth is weighted by the chance its fit \

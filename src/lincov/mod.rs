@@ -80,7 +80,10 @@
 //! - `estimated`: `dx = x_estimated - x_true ~ N(0, F(x_true)^-1)`, the Cramer-Rao covariance of
 //!   the schedule at the true errors with the fixture's tilts marginalised under their prior
 //!   (`calib::pose::marginal_fisher`, as `gfcal identify` does). It depends on the truth, so
-//!   when the errors are random the drift is a mixture over drawn truths ([`mixture`]);
+//!   when the errors are random the drift is a mixture over drawn truths, each
+//!   weighted by the chance that its fit stays in the model's small-error region (the Monte
+//!   Carlo refuses the fits that leave it) and with the covariance of the fits that stay
+//!   (`analysis`);
 //! - `true`: no parameter error, only the navigation's noise (when `navigation.noise` is on).
 //!
 //! The sensitivity is evaluated at the centre of the error distributions (the reference); its

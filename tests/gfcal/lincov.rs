@@ -195,6 +195,40 @@ fn budget_shares_sum_to_the_total_and_a_switched_off_source_gives_zero() {
     }
 }
 
+/// A run is a function of its config and seed: the same rows, bit for bit, on 1 and on 3 threads
+/// (the compensations, truths, probes and rows of a cell run in parallel), for the quickstart
+/// (weighted truths, probes at a tail truth) and for a config with the `true` compensation, a
+/// tilted fixture and navigation noise.
+#[test]
+fn the_same_rows_bit_for_bit_on_one_and_on_three_threads() {
+    let bits = |results: &[CellResult]| -> Vec<u64> {
+        let mut out = Vec::new();
+        for c in results {
+            out.push(c.excluded_truths as u64);
+            out.push(c.refused_fraction.to_bits());
+            for r in &c.rows {
+                for v in [r.median, r.p95, r.p05, r.rms, r.median_se, r.p95_se, r.nonlinearity] {
+                    out.push(v.to_bits());
+                }
+                out.extend(r.budget.iter().map(|(_, v)| v.to_bits()));
+            }
+        }
+        out
+    };
+    for (name, text, truths) in
+        [("quickstart", shipped("quickstart.toml", 1, &[]), 256), ("budget", BUDGET.to_string(), 64)]
+    {
+        let cfg = load(&text);
+        let on = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| analyse(&cfg, truths))
+        };
+        let (one, three) = (on(1), on(3));
+        assert!(one.iter().all(|c| !c.rows.is_empty()), "{name}: rows");
+        assert!(bits(&one) == bits(&three), "{name}: rows differ between 1 and 3 threads");
+    }
+}
+
 /// A schedule of static poses only cannot identify the locations (they are seen only through a
 /// rotation): on a manoeuvre that rotates, every metric of the estimated compensation is
 /// unbounded and names them (`a1.dy`, ...); at rest the locations move nothing and the drift stays a number.
