@@ -274,6 +274,31 @@ fn largest_eigenvalue(m: &Matrix3<f64>) -> f64 {
     e.eigenvalues.max().max(0.0)
 }
 
+/// Per horizon and metric, how far a linearisation at another truth moves a metric's RMS:
+/// `|sqrt(moved / here) - 1|` from `mean_squares(at, h, m) = (moved, here)`; infinite where the
+/// linearisation failed or a metric moves from nothing.
+fn rms_change(
+    at: Result<Linearisation, LincovError>,
+    horizons: usize,
+    mean_squares: impl Fn(&Linearisation, usize, usize) -> (f64, f64),
+) -> Vec<[f64; 4]> {
+    let Ok(at) = at else { return vec![[f64::INFINITY; 4]; horizons] };
+    (0..horizons)
+        .map(|h| {
+            std::array::from_fn(|m| {
+                let (moved, here) = mean_squares(&at, h, m);
+                if here > 0.0 {
+                    ((moved / here).sqrt() - 1.0).abs()
+                } else if moved > 0.0 {
+                    f64::INFINITY
+                } else {
+                    0.0
+                }
+            })
+        })
+        .collect()
+}
+
 /// A uniformly random rotation from a stream.
 fn random_rotation(seed: u64, m: usize) -> Rotation3<f64> {
     let mut rng = trial_rng(seed ^ ROTATION_SALT, m as u64);
@@ -440,23 +465,10 @@ impl Context<'_> {
         }
         let per_truth: Vec<Vec<[f64; 4]>> = xs
             .par_iter()
-            .map(|x| match linearisation_at(self.cell, x) {
-                Ok(at) => (0..self.blocks.len())
-                    .map(|h| {
-                        std::array::from_fn(|m| {
-                            let here = self.blocks[h][m].noise_unit.trace();
-                            let moved = at.noise_block(h, m).trace();
-                            if here > 0.0 {
-                                ((moved / here).sqrt() - 1.0).abs()
-                            } else if moved > 0.0 {
-                                f64::INFINITY
-                            } else {
-                                0.0
-                            }
-                        })
-                    })
-                    .collect(),
-                Err(_) => vec![[f64::INFINITY; 4]; self.blocks.len()],
+            .map(|x| {
+                rms_change(linearisation_at(self.cell, x), self.blocks.len(), |at, h, m| {
+                    (at.noise_block(h, m).trace(), self.blocks[h][m].noise_unit.trace())
+                })
             })
             .collect();
         Some(
@@ -615,25 +627,12 @@ impl Context<'_> {
             let relinearised;
             (relinearised, navigated) =
                 rayon::join(|| (!single).then(|| linearisation_at(cell, x_t)), || self.navigate(&probes));
-            truth_index = relinearised.map(|at| match at {
-                Ok(at) => (0..horizons)
-                    .map(|h| {
-                        std::array::from_fn(|m| {
-                            let s = at.block(h, m);
-                            let moved =
-                                (&s * cov * s.transpose()).trace() + self.noise_var * at.noise_block(h, m).trace();
-                            let here = per_truth[k][h][m].cov.trace();
-                            if here > 0.0 {
-                                ((moved / here).sqrt() - 1.0).abs()
-                            } else if moved > 0.0 {
-                                f64::INFINITY
-                            } else {
-                                0.0
-                            }
-                        })
-                    })
-                    .collect(),
-                Err(_) => vec![[f64::INFINITY; 4]; horizons],
+            truth_index = relinearised.map(|at| {
+                rms_change(at, horizons, |at, h, m| {
+                    let s = at.block(h, m);
+                    let moved = (&s * cov * s.transpose()).trace() + self.noise_var * at.noise_block(h, m).trace();
+                    (moved, per_truth[k][h][m].cov.trace())
+                })
             });
         }
         Ok(Prepared {
