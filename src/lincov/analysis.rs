@@ -171,6 +171,14 @@ struct Part {
     unbounded_by: Vec<String>,
 }
 
+impl Part {
+    /// Parameters' covariance `cov` and mean, their shares, and the noise's covariance, with no
+    /// fixture and nothing unbounded.
+    fn without_fixture(cov: Matrix3<f64>, mean: Vector3<f64>, shares: Vec<f64>, noise: Matrix3<f64>) -> Self {
+        Part { cov: cov + noise, mean, shares, fixture: 0.0, noise: noise.trace(), unbounded_by: vec![] }
+    }
+}
+
 /// A parameter covariance and how to multiply by it.
 struct ParamCov<'a> {
     cov: &'a DMatrix<f64>,
@@ -366,37 +374,26 @@ impl Context<'_> {
         navigated.into_iter().flatten().collect()
     }
 
+    /// One part per (horizon, metric) block.
+    fn per_block(&self, part: impl Fn(&Block) -> Part) -> Vec<Vec<Part>> {
+        self.blocks.iter().map(|hb| hb.iter().map(&part).collect()).collect()
+    }
+
     fn nominal(&self) -> Prepared {
         let (cell, settings) = (self.cell, self.settings);
         let (mean, variance) = nominal_errors(cell);
         let cov = DMatrix::from_diagonal(&variance);
         let pc = ParamCov { cov: &cov, block_diagonal: true };
-        let parts = self
-            .blocks
-            .iter()
-            .map(|hb| {
-                hb.iter()
-                    .map(|b| {
-                        let (c, mut shares) = propagate(&b.s, &pc);
-                        let mu = &b.s * &mean;
-                        let mu = Vector3::new(mu[0], mu[1], mu[2]);
-                        for (i, sh) in shares.iter_mut().enumerate() {
-                            let own = Vector3::new(b.s[(0, i)], b.s[(1, i)], b.s[(2, i)]) * mean[i];
-                            *sh += own.dot(&mu);
-                        }
-                        let noise = self.noise_var * b.noise_unit;
-                        Part {
-                            cov: c + noise,
-                            mean: mu,
-                            shares,
-                            fixture: 0.0,
-                            noise: noise.trace(),
-                            unbounded_by: vec![],
-                        }
-                    })
-                    .collect()
-            })
-            .collect();
+        let parts = self.per_block(|b| {
+            let (c, mut shares) = propagate(&b.s, &pc);
+            let mu = &b.s * &mean;
+            let mu = Vector3::new(mu[0], mu[1], mu[2]);
+            for (i, sh) in shares.iter_mut().enumerate() {
+                let own = Vector3::new(b.s[(0, i)], b.s[(1, i)], b.s[(2, i)]) * mean[i];
+                *sh += own.dot(&mu);
+            }
+            Part::without_fixture(c, mu, shares, self.noise_var * b.noise_unit)
+        });
         let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
         if settings.nonlinearity {
             let x_nom = nominal_parameters(cell);
@@ -421,25 +418,9 @@ impl Context<'_> {
 
     fn true_noise(&self) -> Prepared {
         let p = self.cell.layout.len();
-        let parts = self
-            .blocks
-            .iter()
-            .map(|hb| {
-                hb.iter()
-                    .map(|b| {
-                        let noise = self.noise_var * b.noise_unit;
-                        Part {
-                            cov: noise,
-                            mean: Vector3::zeros(),
-                            shares: vec![0.0; p],
-                            fixture: 0.0,
-                            noise: noise.trace(),
-                            unbounded_by: vec![],
-                        }
-                    })
-                    .collect()
-            })
-            .collect();
+        let parts = self.per_block(|b| {
+            Part::without_fixture(Matrix3::zeros(), Vector3::zeros(), vec![0.0; p], self.noise_var * b.noise_unit)
+        });
         let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
         if self.settings.nonlinearity || self.noise_var == 0.0 {
             let x_ref = reference(self.cell);
@@ -523,35 +504,28 @@ impl Context<'_> {
                     return None;
                 }
                 let pc = ParamCov { cov: &cal.covariance, block_diagonal: perfect };
-                let parts = blocks
-                    .iter()
-                    .map(|hb| {
-                        hb.iter()
-                            .map(|b| {
-                                let (c, mut shares) = propagate(&b.s, &pc);
-                                // The fixture's part of each parameter's share is its own source.
-                                let mut fixture = 0.0;
-                                if !perfect {
-                                    let fx = ParamCov { cov: &cal.fixture, block_diagonal: false };
-                                    let (_, fix_shares) = propagate(&b.s, &fx);
-                                    for (s, f) in shares.iter_mut().zip(&fix_shares) {
-                                        *s -= f;
-                                        fixture += f;
-                                    }
-                                }
-                                let noise = self.noise_var * b.noise_unit;
-                                Part {
-                                    cov: c + noise,
-                                    mean: Vector3::zeros(),
-                                    shares,
-                                    fixture,
-                                    noise: noise.trace(),
-                                    unbounded_by: reached_by(&b.s, &cal.null, &target, layout),
-                                }
-                            })
-                            .collect()
-                    })
-                    .collect();
+                let parts = self.per_block(|b| {
+                    let (c, mut shares) = propagate(&b.s, &pc);
+                    // The fixture's part of each parameter's share is its own source.
+                    let mut fixture = 0.0;
+                    if !perfect {
+                        let fx = ParamCov { cov: &cal.fixture, block_diagonal: false };
+                        let (_, fix_shares) = propagate(&b.s, &fx);
+                        for (s, f) in shares.iter_mut().zip(&fix_shares) {
+                            *s -= f;
+                            fixture += f;
+                        }
+                    }
+                    let noise = self.noise_var * b.noise_unit;
+                    Part {
+                        cov: c + noise,
+                        mean: Vector3::zeros(),
+                        shares,
+                        fixture,
+                        noise: noise.trace(),
+                        unbounded_by: reached_by(&b.s, &cal.null, &target, layout),
+                    }
+                });
                 Some((parts, weight))
             })
             .collect();
