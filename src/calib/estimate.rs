@@ -48,6 +48,20 @@ impl Estimate {
 /// 0.5%, and real misalignments are milliradians.
 pub const SMALL_ERROR_ANGLE_RAD: f64 = 0.1;
 
+/// The model's small-error region (see [`outside_small_error_region`]): per parameter of `layout`
+/// the largest magnitude inside, SI: the array's extent for a location, [`SMALL_ERROR_ANGLE_RAD`]
+/// for a misalignment, infinite for scale factors and biases (no bound).
+pub fn small_error_bounds(layout: &Layout) -> Vec<f64> {
+    let extent_m = layout.array().accelerometers().iter().map(|a| a.position_m.norm()).fold(0.0, f64::max);
+    (0..layout.len())
+        .map(|i| match layout.kind(i) {
+            super::params::ParamKind::Location(_) => extent_m,
+            super::params::ParamKind::Misalignment(_) => SMALL_ERROR_ANGLE_RAD,
+            _ => f64::INFINITY,
+        })
+        .collect()
+}
+
 /// Where an estimate `x` leaves the region in which the error model, linear in small errors
 /// about the nominal geometry, holds: a misalignment angle beyond [`SMALL_ERROR_ANGLE_RAD`], or
 /// a location error larger than the array itself (the largest distance of a nominal position
@@ -55,18 +69,15 @@ pub const SMALL_ERROR_ANGLE_RAD: f64 = 0.1;
 /// through a small misalignment: a bilinear valley) ends there; it is not an answer, however low
 /// its cost. Names the worst offender.
 pub fn outside_small_error_region(layout: &Layout, x: &DVector<f64>) -> Option<String> {
-    let extent_m = layout.array().accelerometers().iter().map(|a| a.position_m.norm()).fold(0.0, f64::max);
+    let bounds = small_error_bounds(layout);
     let mut worst: Option<(f64, String)> = None;
-    for i in 0..x.len() {
-        let (excess, bound) = match layout.kind(i) {
-            super::params::ParamKind::Location(_) => {
-                (x[i].abs() / extent_m, format!("the array's extent {extent_m} m"))
-            }
-            super::params::ParamKind::Misalignment(_) => {
-                (x[i].abs() / SMALL_ERROR_ANGLE_RAD, format!("{SMALL_ERROR_ANGLE_RAD} rad"))
-            }
+    for (i, &b) in bounds.iter().enumerate().take(x.len()) {
+        let bound = match layout.kind(i) {
+            super::params::ParamKind::Location(_) => format!("the array's extent {b} m"),
+            super::params::ParamKind::Misalignment(_) => format!("{b} rad"),
             _ => continue,
         };
+        let excess = x[i].abs() / b;
         let beyond = !excess.is_finite() || excess > 1.0;
         if beyond && worst.as_ref().is_none_or(|w| excess > w.0 || excess.is_nan()) {
             worst = Some((

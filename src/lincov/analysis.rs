@@ -493,7 +493,8 @@ impl Context<'_> {
         let single = xs.len() == 1;
         let target = crate::calib::fisher::Targets::default().si(layout, &x_ref);
         let perfect = cell.calibration.pose.is_perfect();
-        let bounds = small_error_bounds(cell);
+        // The region the Monte Carlo's fits are refused outside of.
+        let bounds = crate::calib::estimate::small_error_bounds(layout);
         let per_truth: Vec<Option<(Vec<Vec<Part>>, f64)>> = xs
             .par_iter()
             .map(|x| {
@@ -775,20 +776,6 @@ pub fn analyse_cell(
     let excluded = prepared.iter().map(|p| p.excluded).sum();
     let refused_fraction = prepared.iter().map(|p| p.refused_fraction).sum();
     Ok(CellResult { cell: cell.index, rows, excluded_truths: excluded, refused_fraction })
-}
-
-/// The model's small-error region (`calib::estimate::outside_small_error_region`, which the
-/// Monte Carlo's fits are refused by): per parameter the largest magnitude inside, SI (infinite
-/// for scale factors and biases, which have no bound).
-fn small_error_bounds(cell: &Cell) -> Vec<f64> {
-    let extent_m = cell.array.accelerometers().iter().map(|a| a.position_m.norm()).fold(0.0, f64::max);
-    (0..cell.layout.len())
-        .map(|i| match cell.layout.kind(i) {
-            crate::calib::ParamKind::Location(_) => extent_m,
-            crate::calib::ParamKind::Misalignment(_) => crate::calib::estimate::SMALL_ERROR_ANGLE_RAD,
-            _ => f64::INFINITY,
-        })
-        .collect()
 }
 
 /// The chance that a fit at truth `x`, its error distributed `N(0, cov)`, stays inside the
