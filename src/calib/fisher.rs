@@ -11,7 +11,7 @@
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
-use super::params::{Layout, PER_ACCEL, ParamKind};
+use super::params::{Layout, PER_ACCEL, ParamKind, StepMotion};
 use super::schedule::Schedule;
 use crate::units::{M_PER_MM, M_S2_PER_UG, RAD_PER_DEG};
 
@@ -57,19 +57,29 @@ pub fn fisher_information(
     g_m_s2: f64,
     density_m_s2_per_sqrt_hz: f64,
 ) -> DMatrix<f64> {
-    let n = layout.array().len();
+    // What each step does to the specific force, once: the steps' motions are the same for
+    // every accelerometer. Accelerometer by accelerometer, each block summed over the steps in
+    // their order (the same sums as step by step).
+    let motions: Vec<(StepMotion, f64)> =
+        schedule.steps().iter().map(|step| (StepMotion::new(step, g_m_s2), step.sampled_duration_s())).collect();
     let mut f = DMatrix::zeros(layout.len(), layout.len());
-    let mut out = vec![0.0; n];
-    let mut jac = vec![[0.0; PER_ACCEL]; n];
-    for step in schedule.steps() {
-        layout.step_model(x, step, g_m_s2, &mut out, Some(&mut jac));
-        for (j, gj) in jac.iter().enumerate() {
-            let o = PER_ACCEL * j;
-            let w = step.sampled_duration_s() / (x[o] * density_m_s2_per_sqrt_hz).powi(2);
-            for a in 0..PER_ACCEL {
-                for b in 0..PER_ACCEL {
-                    f[(o + a, o + b)] += w * gj[a] * gj[b];
+    for j in 0..layout.array().len() {
+        let o = PER_ACCEL * j;
+        let xj: [f64; PER_ACCEL] = std::array::from_fn(|a| x[o + a]);
+        let variance = (x[o] * density_m_s2_per_sqrt_hz).powi(2);
+        let mut block = [[0.0; PER_ACCEL]; PER_ACCEL];
+        for (motion, duration_s) in &motions {
+            let (_, gj) = layout.accel_model(j, &xj, motion);
+            let w = duration_s / variance;
+            for (a, row) in block.iter_mut().enumerate() {
+                for (b, v) in row.iter_mut().enumerate() {
+                    *v += w * gj[a] * gj[b];
                 }
+            }
+        }
+        for (a, row) in block.iter().enumerate() {
+            for (b, v) in row.iter().enumerate() {
+                f[(o + a, o + b)] = *v;
             }
         }
     }

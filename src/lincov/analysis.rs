@@ -3,13 +3,13 @@
 
 use std::sync::Arc;
 
-use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, UnitQuaternion, Vector3, Vector4};
+use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3, Vector4};
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
 use super::dynamics::{Linearisation, LinearisationError, linearise};
 use super::nonlinearity::{Probe, SIGMA_POINT, index, navigate_probes, principal_direction};
-use super::norm::{GaussNorm, ScaleMixture};
+use super::norm::{GaussNorm, ScaleMixture, turned_axes};
 use super::sources::{calibration_with, nominal_errors, nominal_parameters, reference, truths};
 use crate::calib::params::PER_ACCEL;
 use crate::config::calibration::Estimator;
@@ -224,18 +224,12 @@ fn propagate(s: &DMatrix<f64>, c: &ParamCov<'_>) -> (Matrix3<f64>, Vec<f64>) {
     let mut shares = vec![0.0; p];
     let mut cov = [[0.0; 3]; 3];
     for o in (0..p).step_by(PER_ACCEL) {
-        // sc = S_j C_j, 3 x 7, column by column.
-        let mut sc = [[0.0; 3]; PER_ACCEL];
-        for (col, sc_col) in sc.iter_mut().enumerate() {
-            let c_col = &cd[(o + col) * p + o..(o + col) * p + o + PER_ACCEL];
-            for (k, ck) in c_col.iter().enumerate() {
-                let s_col = &sd[3 * (o + k)..3 * (o + k) + 3];
-                for r in 0..3 {
-                    sc_col[r] += s_col[r] * ck;
-                }
-            }
-        }
-        for (col, sc_col) in sc.iter().enumerate() {
+        // sc = S_j C_j, 3 x 7, at a fixed size (summed over k in order, as by hand).
+        let s_j = SMatrix::<f64, 3, PER_ACCEL>::from_column_slice(&sd[3 * o..3 * (o + PER_ACCEL)]);
+        let c_j = SMatrix::<f64, PER_ACCEL, PER_ACCEL>::from_fn(|r, c| cd[(o + c) * p + o + r]);
+        let sc_j = s_j * c_j;
+        for col in 0..PER_ACCEL {
+            let sc_col = sc_j.column(col);
             let s_col = &sd[3 * (o + col)..3 * (o + col) + 3];
             shares[o + col] = s_col[0] * sc_col[0] + s_col[1] * sc_col[1] + s_col[2] * sc_col[2];
             for r in 0..3 {
@@ -361,16 +355,29 @@ struct Prepared {
 }
 
 impl Context<'_> {
-    /// The navigator at the probes (independent navigations, in parallel chunks).
-    fn navigate(&self, probes: &[Probe]) -> Vec<Vec<[f64; 4]>> {
+    /// The navigator at the probes (independent navigations, in parallel chunks), each only as
+    /// far as the horizons its block serves.
+    fn navigate(&self, probes: &[Probe], blocks: &[ProbeBlock]) -> Vec<Vec<[f64; 4]>> {
         let Some(grid) = self.grid else { return vec![] };
         if probes.is_empty() {
             return vec![];
         }
         let (layout, g) = (&self.cell.layout, self.cell.calibration.gravity_m_s2);
-        // Chunks of two lane sets (each probe's numbers are those it gets navigated alone).
-        let navigated: Vec<Vec<Vec<[f64; 4]>>> =
-            probes.par_chunks(2 * LANES).map(|chunk| navigate_probes(layout, grid, g, chunk)).collect();
+        let reach = |k: usize| blocks[k].horizon.map_or(self.blocks.len(), |h| h + 1);
+        // Runs of probes with the same reach, in chunks of two lane sets (each probe's numbers
+        // are those it gets navigated alone).
+        let mut chunks: Vec<(std::ops::Range<usize>, usize)> = Vec::new();
+        let mut start = 0;
+        for k in 1..=probes.len() {
+            if k == probes.len() || reach(k) != reach(start) || k - start == 2 * LANES {
+                chunks.push((start..k, reach(start)));
+                start = k;
+            }
+        }
+        let navigated: Vec<Vec<Vec<[f64; 4]>>> = chunks
+            .par_iter()
+            .map(|(range, reach)| navigate_probes(layout, grid, g, &probes[range.clone()], *reach))
+            .collect();
         navigated.into_iter().flatten().collect()
     }
 
@@ -471,7 +478,7 @@ impl Context<'_> {
             comp,
             weights: vec![1.0; parts.len()],
             parts,
-            navigated: self.navigate(probes),
+            navigated: self.navigate(probes, &probe_blocks),
             probes: probe_blocks,
             unbounded: vec![vec![vec![]; 4]; self.blocks.len()],
             probe_component: 0,
@@ -600,8 +607,10 @@ impl Context<'_> {
             }
             // The probed truth's own linearisation, beside the navigations of its probes.
             let relinearised;
-            (relinearised, navigated) =
-                rayon::join(|| (!single).then(|| linearisation_at(cell, x_t)), || self.navigate(&probes));
+            (relinearised, navigated) = rayon::join(
+                || (!single).then(|| linearisation_at(cell, x_t)),
+                || self.navigate(&probes, &probe_blocks),
+            );
             truth_index = relinearised.map(|at| {
                 rms_change(at, horizons, |at, h, m| {
                     let s = at.block(h, m);
@@ -625,7 +634,7 @@ impl Context<'_> {
     }
 
     /// The row of one horizon and metric.
-    fn row(&self, prep: &Prepared, rotations: &[Rotation3<f64>], h: usize, m: usize) -> MetricResult {
+    fn row(&self, prep: &Prepared, axes: &[[Vector3<f64>; 6]], h: usize, m: usize) -> MetricResult {
         let parts = &prep.parts;
         let components = parts.len();
         let p = self.cell.layout.len();
@@ -656,7 +665,7 @@ impl Context<'_> {
         } else {
             let mut mix = ScaleMixture::default();
             for &k in &bounded {
-                mix.add_gaussian(&parts[k][h][m].cov, &rotations[k], w[k]);
+                mix.add_gaussian_along(&parts[k][h][m].cov, &axes[k], w[k]);
             }
             let q = |p: f64| within(p).map_or((f64::INFINITY, 0.0), |p| mix.quantile_with_error(p));
             ((median, median_se), (p95, p95_se)) = (q(0.5), q(0.95));
@@ -763,16 +772,26 @@ pub fn analyse_cell(
             Compensation::Estimated => ctx.estimated(),
         })
         .collect::<Result<_, _>>()?;
-    let mut rows = Vec::new();
-    for prep in &prepared {
-        // One random rotation per component (the directions its Gaussian is read along).
-        let components = prep.parts.len();
-        let rotations: Vec<Rotation3<f64>> =
-            if components > 1 { (0..components).map(|k| random_rotation(seed, k)).collect() } else { vec![] };
-        let mine: Vec<MetricResult> =
-            (0..horizons * 4).into_par_iter().map(|hm| ctx.row(prep, &rotations, hm / 4, hm % 4)).collect();
-        rows.extend(mine);
-    }
+    // One random rotation per component of a mixture: the directions its Gaussian is read along.
+    let axes: Vec<Vec<[Vector3<f64>; 6]>> = prepared
+        .iter()
+        .map(|prep| {
+            let components = prep.parts.len();
+            if components > 1 {
+                (0..components).map(|k| turned_axes(&random_rotation(seed, k))).collect()
+            } else {
+                vec![]
+            }
+        })
+        .collect();
+    // Every compensation's rows at once, in order.
+    let rows: Vec<MetricResult> = (0..prepared.len() * horizons * 4)
+        .into_par_iter()
+        .map(|i| {
+            let (c, hm) = (i / (horizons * 4), i % (horizons * 4));
+            ctx.row(&prepared[c], &axes[c], hm / 4, hm % 4)
+        })
+        .collect();
     let excluded = prepared.iter().map(|p| p.excluded).sum();
     let refused_fraction = prepared.iter().map(|p| p.refused_fraction).sum();
     Ok(CellResult { cell: cell.index, rows, excluded_truths: excluded, refused_fraction })
@@ -832,15 +851,18 @@ fn stay_in_small_error_region(
     weight
 }
 
-/// `m <- A m A^T` with `A = I - shrink beta e_i^T`.
+/// `m <- A m A^T` with `A = I - shrink beta e_i^T`. Only the rows and columns `r` with
+/// `beta[r]` or `m[r, i]` nonzero change (elsewhere the update is an exact zero), so a
+/// block-diagonal `m` is updated in its block alone.
 fn shrink_along(m: &mut DMatrix<f64>, beta: &[f64], i: usize, shrink: f64) {
     let n = m.nrows();
-    let row_i: Vec<f64> = (0..n).map(|c| m[(i, c)]).collect();
-    let col_i: Vec<f64> = (0..n).map(|r| m[(r, i)]).collect();
+    let active: Vec<usize> = (0..n).filter(|&r| beta[r] != 0.0 || m[(r, i)] != 0.0 || m[(i, r)] != 0.0).collect();
+    let row_i: Vec<f64> = active.iter().map(|&c| m[(i, c)]).collect();
+    let col_i: Vec<f64> = active.iter().map(|&r| m[(r, i)]).collect();
     let mii = m[(i, i)];
-    for c in 0..n {
-        for r in 0..n {
-            m[(r, c)] += shrink * (shrink * beta[r] * mii * beta[c] - beta[r] * row_i[c] - col_i[r] * beta[c]);
+    for (b, &c) in active.iter().enumerate() {
+        for (a, &r) in active.iter().enumerate() {
+            m[(r, c)] += shrink * (shrink * beta[r] * mii * beta[c] - beta[r] * row_i[b] - col_i[a] * beta[c]);
         }
     }
 }

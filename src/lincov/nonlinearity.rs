@@ -51,7 +51,15 @@ pub struct Probe {
 
 /// The drift norms of each probe at each horizon of the grid (rate, attitude, velocity,
 /// position); infinite where the navigation diverged, NaN where the compensation is degenerate.
-pub fn navigate_probes(layout: &Layout, grid: &MotionGrid, g_m_s2: f64, probes: &[Probe]) -> Vec<Vec<[f64; 4]>> {
+/// Only the first `reach` horizons are navigated to (the navigator stops at the last of them; its
+/// steps up to there are the same): NaN at the others.
+pub fn navigate_probes(
+    layout: &Layout,
+    grid: &MotionGrid,
+    g_m_s2: f64,
+    probes: &[Probe],
+    reach: usize,
+) -> Vec<Vec<[f64; 4]>> {
     let array: &Array = layout.array();
     let gravity_i = Vector3::new(0.0, 0.0, -g_m_s2);
     let horizons = grid.plan.records.len();
@@ -99,19 +107,28 @@ pub fn navigate_probes(layout: &Layout, grid: &MotionGrid, g_m_s2: f64, probes: 
         let compensators = who.iter().filter_map(|&k| comps[k].as_ref()).collect();
         groups.push(NavGroup { fill: fill.as_mut(), compensators });
     }
+    let reach = reach.clamp(1, horizons.max(1));
+    let shortened;
+    let plan = if reach < horizons {
+        let records = grid.plan.records[..reach].to_vec();
+        let steps = grid.plan.steps[..records[reach - 1].0].to_vec();
+        shortened = crate::nav::Plan { steps, records };
+        &shortened
+    } else {
+        &grid.plan
+    };
     let route = Route {
-        plan: &grid.plan,
+        plan,
         initial: &grid.initial,
-        record_truths: &grid.record_truths,
+        record_truths: &grid.record_truths[..reach.min(grid.record_truths.len())],
         gravity_i_m_s2: &gravity_i,
     };
     let mut out = vec![vec![[f64::NAN; 4]; horizons]; probes.len()];
     for (who, samples) in navigated_groups.into_iter().zip(navigate_groups(&route, &mut groups)) {
         for (&k, s) in who.iter().zip(samples) {
-            out[k] = s
-                .iter()
-                .map(|d| [d.rate_err_rad_s, d.attitude_err_rad, d.velocity_err_m_s, d.position_err_m])
-                .collect();
+            for (o, d) in out[k].iter_mut().zip(s) {
+                *o = [d.rate_err_rad_s, d.attitude_err_rad, d.velocity_err_m_s, d.position_err_m];
+            }
         }
     }
     out

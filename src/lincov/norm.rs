@@ -379,6 +379,12 @@ fn solve_increasing(f: impl Fn(f64) -> f64, p: f64, lo: f64, hi: f64) -> f64 {
 
 /// The six axes of an icosahedron (its twelve vertices in antipodal pairs), unit length: a
 /// spherical 5-design.
+/// The axes of an icosahedron turned by `rotation` (the directions a Gaussian of a mixture is
+/// read along).
+pub fn turned_axes(rotation: &nalgebra::Rotation3<f64>) -> [Vector3<f64>; 6] {
+    icosahedron_axes().map(|axis| rotation * axis)
+}
+
 fn icosahedron_axes() -> [Vector3<f64>; 6] {
     let g = (1.0 + 5f64.sqrt()) / 2.0;
     [
@@ -407,6 +413,25 @@ fn kernel() -> &'static [f64] {
     })
 }
 
+/// `F_chi2_3(e^u)` and its derivative in `u`, linear between the points of [`kernel`].
+fn kernel_at(u: f64) -> (f64, f64) {
+    let table = kernel();
+    let x = u / BIN + (KERNEL_LOW / BIN).ceil();
+    if x.is_nan() {
+        return (f64::NAN, 0.0);
+    }
+    if x < 0.0 {
+        return (0.0, 0.0);
+    }
+    let i = x.floor();
+    if i >= (table.len() - 1) as f64 {
+        return (1.0, 0.0);
+    }
+    let (k, frac) = (i as usize, x - i);
+    let step = table[k + 1] - table[k];
+    (table[k] + frac * step, step / BIN)
+}
+
 /// A mixture of scaled chi-square(3) variables `A chi^2_3` (the squared metric of a mixture of
 /// Gaussians over random directions, see the module docs), and its quantiles.
 #[derive(Debug, Clone, Default)]
@@ -419,7 +444,8 @@ pub struct ScaleMixture {
     zero: f64,
     /// `sum weight A`, for the mean square.
     weighted_scale: f64,
-    /// The scales of each Gaussian added and its weight, for the quantiles' standard errors.
+    /// The `ln` scales of each Gaussian added (`-inf` for none along an axis, `+inf` for an
+    /// infinite one) and its weight, for the quantiles' standard errors.
     groups: Vec<([f64; 6], f64)>,
 }
 
@@ -427,11 +453,19 @@ impl ScaleMixture {
     /// Adds the components of one Gaussian with covariance `cov` (zero mean), along the axes of
     /// an icosahedron turned by `rotation`, each of weight `weight / 6`.
     pub fn add_gaussian(&mut self, cov: &Matrix3<f64>, rotation: &nalgebra::Rotation3<f64>, weight: f64) {
-        let mut group = [0.0; 6];
-        for (g, axis) in group.iter_mut().zip(icosahedron_axes()) {
-            let w = rotation * axis;
-            *g = (w.transpose() * cov * w)[(0, 0)];
-            self.add_scale(*g, weight / 6.0);
+        self.add_gaussian_along(cov, &turned_axes(rotation), weight);
+    }
+
+    /// [`Self::add_gaussian`] along axes already turned ([`turned_axes`]).
+    pub fn add_gaussian_along(&mut self, cov: &Matrix3<f64>, axes: &[Vector3<f64>; 6], weight: f64) {
+        let mut group = [f64::NEG_INFINITY; 6];
+        for (g, w) in group.iter_mut().zip(axes) {
+            let a = (w.transpose() * cov * w)[(0, 0)];
+            if let Some(ln_a) = self.add_scale(a, weight / 6.0) {
+                *g = ln_a;
+            } else if a.is_infinite() {
+                *g = f64::INFINITY;
+            }
         }
         self.groups.push((group, weight));
     }
@@ -441,32 +475,32 @@ impl ScaleMixture {
     /// function at the quantile, over the square root of their effective number
     /// `(sum w)^2 / sum w^2` and the density there). The error of a mixture over drawn truths and
     /// random directions; 0 for one Gaussian added once. With equal weights, the plain formulas.
+    /// Each Gaussian's distribution function and density are read from the table of
+    /// `F_chi2_3(e^u)` (linear between its points, 0.4% apart in `u`: within about 1e-6).
     pub fn quantile_with_error(&self, p: f64) -> (f64, f64) {
         let q = self.quantile(p);
         let m = self.groups.len();
         if m < 2 || q.is_nan() || q <= 0.0 {
             return (q, 0.0);
         }
-        let t = q * q;
+        let ln_t = 2.0 * q.ln();
         // Each Gaussian's distribution function at q, and the mixture's density there
-        // (d/dq P(chi^2_3 <= q^2 / a) = pdf(q^2 / a) 2 q / a), in one pass.
+        // (d/dq F(2 ln q - ln a) = F'(u) 2 / q), in one pass.
         let mut per = Vec::with_capacity(m);
-        let mut density = 0.0;
+        let mut slope = 0.0;
         let (mut sum_w, mut sum_w2) = (0.0, 0.0);
         for (g, w) in &self.groups {
             let mut f = 0.0;
-            for a in g {
-                let s = t / a;
-                f += chi2_3_cdf(s);
-                if s.is_finite() {
-                    density += w * (chi2_3_pdf(s) * 2.0 * q / a);
-                }
+            for ln_a in g {
+                let (value, derivative) = kernel_at(ln_t - ln_a);
+                f += value;
+                slope += w * derivative;
             }
             per.push(f / 6.0);
             sum_w += w;
             sum_w2 += w * w;
         }
-        let density = density / (6.0 * sum_w);
+        let density = slope * 2.0 / q / (6.0 * sum_w);
         let mean = per.iter().zip(&self.groups).map(|(f, (_, w))| w * f).sum::<f64>() / sum_w;
         // Unbiased for weights of one: sum w (f - mean)^2 / (m - 1).
         let var = per.iter().zip(&self.groups).map(|(f, (_, w))| w * (f - mean).powi(2)).sum::<f64>()
@@ -476,16 +510,18 @@ impl ScaleMixture {
     }
 
     /// Adds `weight` at scale `a` (variance along one direction).
-    pub fn add_scale(&mut self, a: f64, weight: f64) {
+    /// Returns `ln a` where `a` is positive and finite (`None`: the weight went to `A = 0`).
+    pub fn add_scale(&mut self, a: f64, weight: f64) -> Option<f64> {
         self.total += weight;
         if a.is_finite() && a > 0.0 {
             self.weighted_scale += weight * a;
         }
         if a.is_nan() || a <= 0.0 || !a.is_finite() {
             self.zero += weight;
-            return;
+            return None;
         }
-        let u = a.ln() / BIN;
+        let ln_a = a.ln();
+        let u = ln_a / BIN;
         let i = u.floor() as i64;
         let frac = u - i as f64;
         if self.bins.is_empty() {
@@ -504,6 +540,7 @@ impl ScaleMixture {
         let k = (i - self.first) as usize;
         self.bins[k] += weight * (1.0 - frac);
         self.bins[k + 1] += weight * frac;
+        Some(ln_a)
     }
 
     pub fn is_empty(&self) -> bool {

@@ -9,7 +9,8 @@
 //!   covariance the fixture adds, `F^-1 - F_perfect^-1` (positive semi-definite: marginalising
 //!   only removes information), is kept apart for the error budget.
 
-use nalgebra::{DMatrix, DVector, SymmetricEigen};
+use nalgebra::allocator::Allocator;
+use nalgebra::{DMatrix, DVector, DefaultAllocator, Dim, OMatrix, SMatrix, SymmetricEigen};
 
 use crate::calib::fisher::{NULL_TOLERANCE, Targets, fisher_information};
 use crate::calib::params::{Layout, PER_ACCEL};
@@ -18,6 +19,7 @@ use crate::mc::Cell;
 use crate::rng::trial_rng;
 use crate::sensor::params::ArrayParams;
 use rand::RngExt;
+use rayon::prelude::*;
 
 /// Salt of the stream that draws the truths of a mixture when there are too many varying
 /// parameters for the Sobol sequence.
@@ -71,7 +73,13 @@ pub fn truths(cell: &Cell, seed: u64, count: usize) -> Vec<DVector<f64>> {
         return vec![reference(cell)];
     }
     let scramble = (seed & 0xffff_ffff) as u32 ^ 0x6c63_7674;
+    // Each parameter's place among the varying ones.
+    let mut place = vec![None; cell.layout.len()];
+    for (k, &i) in varying.iter().enumerate() {
+        place[i] = Some(k);
+    }
     (0..count)
+        .into_par_iter()
         .map(|m| {
             let u: Vec<f64> = if varying.len() <= 256 {
                 (0..varying.len()).map(|d| sobol_burley::sample(m as u32, d as u32, scramble) as f64).collect()
@@ -79,7 +87,7 @@ pub fn truths(cell: &Cell, seed: u64, count: usize) -> Vec<DVector<f64>> {
                 let mut rng = trial_rng(seed ^ TRUTH_SALT, m as u64);
                 (0..varying.len()).map(|_| rng.random::<f64>()).collect()
             };
-            cell.errors.at(&cell.layout, |i| varying.iter().position(|&v| v == i).map(|k| u[k].clamp(1e-9, 1.0 - 1e-9)))
+            cell.errors.at(&cell.layout, |i| place[i].map(|k: usize| u[k].clamp(1e-9, 1.0 - 1e-9)))
         })
         .collect()
 }
@@ -136,33 +144,51 @@ pub fn calibration_with(cell: &Cell, x: &DVector<f64>, density_m_s2_per_sqrt_hz:
 /// is numerically singular (its scaled pivots below 1e-12 of the largest).
 fn cholesky_inverse(fim: &DMatrix<f64>, coupled: bool) -> Option<DMatrix<f64>> {
     let p = fim.nrows();
-    let blocks: Vec<std::ops::Range<usize>> = if coupled {
-        std::iter::once(0..p).collect()
-    } else {
-        (0..p / PER_ACCEL).map(|j| PER_ACCEL * j..PER_ACCEL * (j + 1)).collect()
-    };
     let mut out = DMatrix::zeros(p, p);
-    for b in blocks {
-        let n = b.len();
-        let d: Vec<f64> = b.clone().map(|i| fim[(i, i)]).collect();
-        if d.iter().any(|v| v.is_nan() || *v <= 0.0) {
-            return None;
+    if coupled {
+        let d: Vec<f64> = (0..p).map(|i| fim[(i, i)]).collect();
+        let scaled = DMatrix::from_fn(p, p, |r, c| fim[(r, c)] / (d[r] * d[c]).sqrt());
+        let inv = scaled_cholesky_inverse(scaled, &d)?;
+        for c in 0..p {
+            for r in 0..p {
+                out[(r, c)] = inv[(r, c)] / (d[r] * d[c]).sqrt();
+            }
         }
-        let scaled = DMatrix::from_fn(n, n, |r, c| fim[(b.start + r, b.start + c)] / (d[r] * d[c]).sqrt());
-        let chol = scaled.cholesky()?;
-        let l = chol.l_dirty();
-        let (lo, hi) = (0..n).map(|i| l[(i, i)]).fold((f64::INFINITY, 0.0_f64), |a, v| (a.0.min(v), a.1.max(v)));
-        if lo * lo < 1e-12 * hi * hi {
-            return None;
-        }
-        let inv = chol.inverse();
-        for r in 0..n {
-            for c in 0..n {
-                out[(b.start + r, b.start + c)] = inv[(r, c)] / (d[r] * d[c]).sqrt();
+        return Some(out);
+    }
+    // Block by block at a fixed size (the same arithmetic, without the heap).
+    for o in (0..p).step_by(PER_ACCEL) {
+        let d: [f64; PER_ACCEL] = std::array::from_fn(|i| fim[(o + i, o + i)]);
+        let scaled = SMatrix::<f64, PER_ACCEL, PER_ACCEL>::from_fn(|r, c| fim[(o + r, o + c)] / (d[r] * d[c]).sqrt());
+        let inv = scaled_cholesky_inverse(scaled, &d)?;
+        for c in 0..PER_ACCEL {
+            for r in 0..PER_ACCEL {
+                out[(o + r, o + c)] = inv[(r, c)] / (d[r] * d[c]).sqrt();
             }
         }
     }
     Some(out)
+}
+
+/// The inverse of `scaled` (a block of the information scaled to unit diagonal by `d`, its
+/// diagonal before) by Cholesky; `None` where `d` is not positive, the block not positive
+/// definite or numerically singular (its pivots below 1e-12 of the largest).
+fn scaled_cholesky_inverse<D>(scaled: OMatrix<f64, D, D>, d: &[f64]) -> Option<OMatrix<f64, D, D>>
+where
+    D: Dim,
+    DefaultAllocator: Allocator<D, D>,
+{
+    if d.iter().any(|v| v.is_nan() || *v <= 0.0) {
+        return None;
+    }
+    let chol = scaled.cholesky()?;
+    let l = chol.l_dirty();
+    let n = d.len();
+    let (lo, hi) = (0..n).map(|i| l[(i, i)]).fold((f64::INFINITY, 0.0_f64), |a, v| (a.0.min(v), a.1.max(v)));
+    if lo * lo < 1e-12 * hi * hi {
+        return None;
+    }
+    Some(chol.inverse())
 }
 
 /// A null direction of a Fisher information and the parameters it reaches.
