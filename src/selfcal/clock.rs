@@ -212,8 +212,11 @@ fn amplitude_sigma(offsets: &Offsets, target: &[f64], clock: &SampleClock) -> f6
     (cost / dof * s1 / (saa * s1 - sa * sa)).sqrt()
 }
 
-/// Weighted least squares of the offsets on `(age, 1)` at a given clock: amplitude, constant and
-/// cost.
+/// Weighted least squares of the offsets on `(age, 1)` at a given clock, the amplitude held at
+/// or above 0: amplitude, constant and cost. An age rises between wraps, so a falling sawtooth
+/// (the mirror `age -> period - age` of another clock, which fits the offsets as well with the
+/// amplitude negated) is no sawtooth of this clock: there the fit is the constant alone, and a
+/// search over clocks cannot settle on a mirror.
 fn linear_part(offsets: &Offsets, target: &[f64], clock: &SampleClock) -> (f64, f64, f64) {
     let (mut saa, mut sa, mut s1, mut say, mut sy, mut syy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     for ((&t, &w), &y) in offsets.t_s.iter().zip(&offsets.weight).zip(target) {
@@ -230,6 +233,9 @@ fn linear_part(offsets: &Offsets, target: &[f64], clock: &SampleClock) -> (f64, 
         return (0.0, sy / s1.max(1e-300), syy - sy * sy / s1.max(1e-300));
     }
     let amp = (say * s1 - sa * sy) / det;
+    if amp < 0.0 {
+        return (0.0, sy / s1.max(1e-300), (syy - sy * sy / s1.max(1e-300)).max(0.0));
+    }
     let c = (saa * sy - sa * say) / det;
     let cost = syy - amp * say - c * sy;
     (amp, c, cost.max(0.0))
@@ -462,6 +468,37 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The mirror of a clock (`age -> period - age`, on the host's samples the clock with the rate
+    /// offset's sign flipped) fits a sawtooth's offsets with the amplitude negated; held at or
+    /// above 0, the amplitude there is 0 and the fit is the constant alone (its cost the offsets'
+    /// weighted spread about their mean, computed here directly), while the clock itself fits with
+    /// amplitude 1 and no cost.
+    #[test]
+    fn the_mirror_of_a_clock_is_no_sawtooth() {
+        let (eps, phase) = (300e-6, 0.3e-3);
+        let truth =
+            SampleClock { nominal_hz: 1000.0, rate_offset: eps, drift_per_s: 0.0, phase_s: phase, t_ref_s: 50.0 };
+        let mirror = SampleClock { rate_offset: -eps, phase_s: 1e-3 - phase, ..truth };
+        let sample: Vec<i64> = (0..6250).collect();
+        let t_s: Vec<f64> = sample.iter().map(|&k| k as f64 * 0.016).collect();
+        // The premise: on the host's samples the mirror's age is the period less the clock's.
+        let mirrored = t_s.iter().filter(|&&t| (mirror.age_s(t) - (1e-3 - truth.age_s(t))).abs() < 1e-9).count();
+        assert!(mirrored > 6200, "{mirrored} of 6250 samples mirrored");
+        let offset_s: Vec<f64> = t_s.iter().map(|&t| truth.age_s(t) + 0.1e-3).collect();
+        let weight: Vec<f64> = (0..6250).map(|k| 1.0 + (k % 3) as f64).collect();
+        let o = Offsets { sample, t_s, offset_s: offset_s.clone(), weight: weight.clone() };
+        let (amp, constant, cost) = linear_part(&o, &offset_s, &mirror);
+        let wsum: f64 = weight.iter().sum();
+        let mean = weight.iter().zip(&offset_s).map(|(w, y)| w * y).sum::<f64>() / wsum;
+        let spread: f64 = weight.iter().zip(&offset_s).map(|(w, y)| w * (y - mean).powi(2)).sum();
+        assert_eq!(amp, 0.0);
+        assert!((constant - mean).abs() < 1e-15, "{constant} vs {mean}");
+        assert!((cost - spread).abs() < 1e-9 * spread, "{cost} vs {spread}");
+        let (amp, constant, cost) = linear_part(&o, &offset_s, &truth);
+        assert!((amp - 1.0).abs() < 1e-9 && (constant - 0.1e-3).abs() < 1e-12, "{amp} {constant}");
+        assert!(cost < 1e-9 * spread, "{cost}");
     }
 
     /// The matched filter and the refinement recover a sawtooth from noisy offsets: rate to a

@@ -42,10 +42,14 @@ fn age_difference_s(a: &SampleClock, b: &SampleClock, t_s: f64) -> f64 {
 /// ```sh
 /// GFCAL_CLOCK_MC_SEEDS=12 cargo test --locked --test gfcal clock_recovery -- --ignored --nocapture
 /// ```
+///
+/// (`GFCAL_CLOCK_MC_FIRST_SEED=8 GFCAL_CLOCK_MC_SEEDS=8` runs seed 8 alone.)
 #[test]
 #[ignore = "Monte Carlo over simulated recordings of the full matched protocol (about a minute each)"]
 fn simulated_clocks_and_locations_are_recovered_within_their_sigmas() {
     let seeds: u64 = std::env::var("GFCAL_CLOCK_MC_SEEDS").ok().and_then(|s| s.parse().ok()).unwrap_or(12);
+    // The first seed (1 unless GFCAL_CLOCK_MC_FIRST_SEED says otherwise: one seed looked at again).
+    let first: u64 = std::env::var("GFCAL_CLOCK_MC_FIRST_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(1);
     let cell = matched_cell();
     let array = &cell.array;
     let n = array.array.len();
@@ -54,7 +58,7 @@ fn simulated_clocks_and_locations_are_recovered_within_their_sigmas() {
     let (mut z_omega, mut omega_err2, mut omega_ref2) = (Vec::new(), 0.0, 0.0);
     let mut birge = Vec::new();
     let mut unfitted = Vec::new();
-    for seed in 1..=seeds {
+    for seed in first..=seeds {
         let truth = config_truth(array, seed);
         let sim = simulate(array, &truth, &cell.protocol, &mut trial_rng(seed, 1)).expect("simulated");
         let cal = calibrate(&sim.recording, array, &CalibrateSettings::default()).expect("calibrates");
@@ -77,7 +81,19 @@ fn simulated_clocks_and_locations_are_recovered_within_their_sigmas() {
         let mean = |f: &dyn Fn(&ClockPair) -> f64| pairs.iter().map(f).sum::<f64>() / pairs.len() as f64;
         let (est_mean, true_mean) = (mean(&|p| p.0.rate_offset), mean(&|p| p.1.rate_offset));
         let relative_sigma = |s: &[f64; 3]| (s[0] * s[0] - c.common_sigma[0] * c.common_sigma[0]).max(0.0).sqrt();
-        for (e, t, s) in &pairs {
+        for (p, (e, t, s)) in pairs.iter().enumerate() {
+            eprintln!(
+                "seed {seed} package {}: rate offset {:.2} ppm (true {:.2}; error {:.4}, sigma {:.4}), drift {:.3e} /s (true {:.3e}), age error {:.2e} s (sigma {:.2e})",
+                p + 1,
+                e.rate_offset * 1e6,
+                t.rate_offset * 1e6,
+                (e.rate_offset - t.rate_offset) * 1e6,
+                s[0] * 1e6,
+                e.drift_per_s,
+                t.drift_per_s,
+                age_difference_s(e, t, e.t_ref_s),
+                s[2]
+            );
             z_rate.push(z(e.rate_offset, t.rate_offset, s[0]));
             z_relative.push(z(e.rate_offset - est_mean, t.rate_offset - true_mean, relative_sigma(s)));
             z_drift.push(z(e.drift_per_s, t.drift_per_s, s[1]));
