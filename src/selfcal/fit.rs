@@ -617,9 +617,12 @@ pub(super) fn accumulate_sample(
             g[base + a] += wt * dg[a] * r;
         }
         if let Some(h) = h.as_deref_mut() {
-            for a in 0..PER_ACCEL {
-                for b in 0..PER_ACCEL {
-                    h[(base + a, base + b)] += wt * dg[a] * dg[b];
+            // Column by column (the storage's order); each element once, as `wt dg_a dg_b`.
+            for b in 0..PER_ACCEL {
+                let column = &mut h.column_mut(base + b);
+                let column = &mut column.as_mut_slice()[base..base + PER_ACCEL];
+                for (a, v) in column.iter_mut().enumerate() {
+                    *v += wt * dg[a] * dg[b];
                 }
             }
         }
@@ -650,10 +653,13 @@ pub(super) fn accumulate_sample(
             let pab = ya.dot(&scratch.wdl[b]);
             let base_b = PER_ACCEL * scratch.index[b];
             let dgb = scratch.dg[b];
-            for p in 0..PER_ACCEL {
-                let f = pab * dga[p];
-                for q in 0..PER_ACCEL {
-                    h[(base_a + p, base_b + q)] -= f * dgb[q];
+            let f: [f64; PER_ACCEL] = std::array::from_fn(|p| pab * dga[p]);
+            // Column by column (the storage's order); each element once, as `(pab dga_p) dgb_q`.
+            for (q, dq) in dgb.iter().enumerate() {
+                let column = &mut h.column_mut(base_b + q);
+                let column = &mut column.as_mut_slice()[base_a..base_a + PER_ACCEL];
+                for (v, fp) in column.iter_mut().zip(&f) {
+                    *v -= fp * dq;
                 }
             }
         }
