@@ -8,7 +8,7 @@ use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
 use super::dynamics::{Linearisation, LinearisationError, linearise};
-use super::nonlinearity::{Probe, SIGMA_POINT, index, navigate_probes, principal_direction};
+use super::nonlinearity::{Probe, SIGMA_POINT, index, navigate_probes, pair_index, principal_direction};
 use super::norm::{GaussNorm, ScaleMixture, turned_axes};
 use super::sources::{calibration_with, nominal_errors, nominal_parameters, reference, truths};
 use crate::calib::params::PER_ACCEL;
@@ -270,6 +270,25 @@ fn reached_by(
     names
 }
 
+/// The mixture over drawn truths of block `(h, m)`: its components that no unidentifiable
+/// parameter reaches (their indices), read along their turned `axes` with their `weights`, and
+/// the share of the weight they carry (a quantile at or above it is infinite).
+fn bounded_mixture(
+    parts: &[Vec<Vec<Part>>],
+    weights: &[f64],
+    axes: &[[Vector3<f64>; 6]],
+    h: usize,
+    m: usize,
+) -> (ScaleMixture, Vec<usize>, f64) {
+    let bounded: Vec<usize> = (0..parts.len()).filter(|&k| parts[k][h][m].unbounded_by.is_empty()).collect();
+    let mut mix = ScaleMixture::default();
+    for &k in &bounded {
+        mix.add_gaussian_along(&parts[k][h][m].cov, &axes[k], weights[k]);
+    }
+    let share = bounded.iter().map(|&k| weights[k]).sum::<f64>() / weights.iter().sum::<f64>();
+    (mix, bounded, share)
+}
+
 /// The largest eigenvalue of a symmetric 3 x 3 matrix (0 for a zero matrix).
 fn largest_eigenvalue(m: &Matrix3<f64>) -> f64 {
     let e = nalgebra::SymmetricEigen::new((m + m.transpose()) * 0.5);
@@ -328,6 +347,12 @@ struct ProbeBlock {
     horizon: Option<usize>,
     /// The parameter error it navigates with.
     dx: DVector<f64>,
+    /// How many of the probed component's standard deviations along its direction it lies at (the
+    /// index's spread term is that many of the metric's largest standard deviations).
+    sigmas: f64,
+    /// Its linear prediction `|S_h dx|` per horizon and metric from its truth's own linearisation,
+    /// where that is not the reference (`None`: from the reference's blocks).
+    linear: Option<Vec<[f64; 4]>>,
 }
 
 /// One compensation's distribution, before its rows: the Gaussians (one per kept truth) of every
@@ -352,6 +377,9 @@ struct Prepared {
     excluded: usize,
     /// The chance, over the truths drawn, that a fit leaves the small-error region.
     refused_fraction: f64,
+    /// Per component of a mixture, the turned axes its Gaussian is read along (empty for one
+    /// Gaussian).
+    axes: Vec<[Vector3<f64>; 6]>,
 }
 
 impl Context<'_> {
@@ -405,7 +433,13 @@ impl Context<'_> {
         if settings.nonlinearity {
             let x_nom = nominal_parameters(cell);
             probes.push(Probe { truth: &x_nom - &mean, compensation: x_nom.clone() });
-            probe_blocks.push(ProbeBlock { metric: usize::MAX, horizon: None, dx: mean.clone() });
+            probe_blocks.push(ProbeBlock {
+                metric: usize::MAX,
+                horizon: None,
+                dx: mean.clone(),
+                sigmas: SIGMA_POINT,
+                linear: None,
+            });
             // The nominal errors are large: each horizon's own principal directions (the last
             // horizon's need not move an earlier one's metric the most).
             for (h, hb) in self.blocks.iter().enumerate() {
@@ -414,7 +448,13 @@ impl Context<'_> {
                         for sign in [1.0, -1.0] {
                             let dx = &mean + &u * (sign * SIGMA_POINT);
                             probes.push(Probe { truth: &x_nom - &dx, compensation: x_nom.clone() });
-                            probe_blocks.push(ProbeBlock { metric: m, horizon: Some(h), dx });
+                            probe_blocks.push(ProbeBlock {
+                                metric: m,
+                                horizon: Some(h),
+                                dx,
+                                sigmas: SIGMA_POINT,
+                                linear: None,
+                            });
                         }
                     }
                 }
@@ -432,7 +472,13 @@ impl Context<'_> {
         if self.settings.nonlinearity || self.noise_var == 0.0 {
             let x_ref = reference(self.cell);
             probes.push(Probe { truth: x_ref.clone(), compensation: x_ref });
-            probe_blocks.push(ProbeBlock { metric: usize::MAX, horizon: None, dx: DVector::zeros(p) });
+            probe_blocks.push(ProbeBlock {
+                metric: usize::MAX,
+                horizon: None,
+                dx: DVector::zeros(p),
+                sigmas: SIGMA_POINT,
+                linear: None,
+            });
         }
         let mut prepared = self.prepared(Compensation::True, vec![parts], &probes, probe_blocks);
         if self.settings.nonlinearity && self.noise_var > 0.0 {
@@ -485,6 +531,7 @@ impl Context<'_> {
             truth_index: None,
             excluded: 0,
             refused_fraction: 0.0,
+            axes: vec![],
         }
     }
 
@@ -546,6 +593,12 @@ impl Context<'_> {
         // tiny ones do not underflow in the standard errors' sum of squares).
         let largest = weights.iter().copied().fold(0.0, f64::max);
         let weights: Vec<f64> = weights.iter().map(|w| w / largest).collect();
+        // One random rotation per component: the directions its Gaussian is read along.
+        let axes: Vec<[Vector3<f64>; 6]> = if per_truth.len() > 1 {
+            (0..per_truth.len()).map(|k| turned_axes(&random_rotation(self.seed, k))).collect()
+        } else {
+            vec![]
+        };
         if per_truth.is_empty() {
             return Err(LincovError::Unsupported {
                 key: "errors".into(),
@@ -598,10 +651,21 @@ impl Context<'_> {
             let cov = &cov;
             for (m, b) in blocks[horizons - 1].iter().enumerate() {
                 if let Some(u) = principal_direction(&b.s, cov) {
+                    // As far out as the mixture's p95 at the last horizon (the row's own number),
+                    // not the probed truth's own tail beyond it.
+                    let p95 = if single {
+                        let part = &per_truth[0][horizons - 1][m];
+                        GaussNorm::new(&part.mean, &part.cov).quantile(0.95)
+                    } else {
+                        let (mix, _, share) = bounded_mixture(&per_truth, &weights, &axes, horizons - 1, m);
+                        if 0.95 < share { mix.quantile(0.95 / share) } else { f64::INFINITY }
+                    };
+                    let one_sigma = (&b.s * &u).norm();
+                    let sigmas = if p95.is_finite() && one_sigma > 0.0 { p95 / one_sigma } else { SIGMA_POINT };
                     for sign in [1.0, -1.0] {
-                        let dx = &u * (sign * SIGMA_POINT);
+                        let dx = &u * (sign * sigmas);
                         probes.push(Probe { truth: x_t.clone(), compensation: x_t + &dx });
-                        probe_blocks.push(ProbeBlock { metric: m, horizon: None, dx });
+                        probe_blocks.push(ProbeBlock { metric: m, horizon: None, dx, sigmas, linear: None });
                     }
                 }
             }
@@ -611,6 +675,16 @@ impl Context<'_> {
                 || (!single).then(|| linearisation_at(cell, x_t)),
                 || self.navigate(&probes, &probe_blocks),
             );
+            // The probes' linear prediction from the probed truth's own linearisation: the
+            // index then measures the navigator's departure from it at that truth, and the
+            // sensitivity's change from the reference's is the truth index's.
+            if let Some(Ok(at)) = &relinearised {
+                for pb in probe_blocks.iter_mut() {
+                    pb.linear = Some(
+                        (0..horizons).map(|h| std::array::from_fn(|m| (&at.block(h, m) * &pb.dx).norm())).collect(),
+                    );
+                }
+            }
             truth_index = relinearised.map(|at| {
                 rms_change(at, horizons, |at, h, m| {
                     let s = at.block(h, m);
@@ -630,11 +704,12 @@ impl Context<'_> {
             truth_index,
             excluded,
             refused_fraction,
+            axes,
         })
     }
 
     /// The row of one horizon and metric.
-    fn row(&self, prep: &Prepared, axes: &[[Vector3<f64>; 6]], h: usize, m: usize) -> MetricResult {
+    fn row(&self, prep: &Prepared, h: usize, m: usize) -> MetricResult {
         let parts = &prep.parts;
         let components = parts.len();
         let p = self.cell.layout.len();
@@ -644,10 +719,14 @@ impl Context<'_> {
         let (mut median_se, mut p95_se) = (0.0, 0.0);
         // Components where an unidentifiable parameter reaches the metric are infinite: a
         // quantile at or above the bounded components' weight is then infinite too.
-        let bounded: Vec<usize> = (0..components).filter(|&k| parts[k][h][m].unbounded_by.is_empty()).collect();
         let w = &prep.weights;
         let total_weight: f64 = w.iter().sum();
-        let weight = bounded.iter().map(|&k| w[k]).sum::<f64>() / total_weight;
+        let (mix, bounded, weight) = if components > 1 {
+            bounded_mixture(parts, w, &prep.axes, h, m)
+        } else {
+            let bounded: Vec<usize> = (0..components).filter(|&k| parts[k][h][m].unbounded_by.is_empty()).collect();
+            (ScaleMixture::default(), bounded, 1.0)
+        };
         let within = |p: f64| if p < weight { Some(p / weight) } else { None };
         if bounded.is_empty() {
             (median, p95, p05) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
@@ -663,10 +742,6 @@ impl Context<'_> {
             }
             mean_square = dist.mean_square();
         } else {
-            let mut mix = ScaleMixture::default();
-            for &k in &bounded {
-                mix.add_gaussian_along(&parts[k][h][m].cov, &axes[k], w[k]);
-            }
             let q = |p: f64| within(p).map_or((f64::INFINITY, 0.0), |p| mix.quantile_with_error(p));
             ((median, median_se), (p95, p95_se)) = (q(0.5), q(0.95));
             p05 = within(0.05).map_or(f64::INFINITY, |p| mix.quantile(p));
@@ -688,11 +763,12 @@ impl Context<'_> {
             sums.iter().enumerate().map(|(i, v)| (Source::Parameter(i), v / n)).collect();
         budget.push((Source::Fixture, parts.iter().zip(w).map(|(c, w)| w * c[h][m].fixture).sum::<f64>() / n));
         budget.push((Source::Noise, parts.iter().zip(w).map(|(c, w)| w * c[h][m].noise).sum::<f64>() / n));
-        // Nonlinearity: the probes of this metric (and the centre's, for a mean), against the
-        // probed component's spread at this horizon.
-        let probe_scale = SIGMA_POINT * largest_eigenvalue(&parts[prep.probe_component][h][m].cov).sqrt();
+        // Nonlinearity: the probes of this metric (in pairs about the centre) and the centre's
+        // (for a mean), against the probed component's spread at this horizon.
+        let spread = largest_eigenvalue(&parts[prep.probe_component][h][m].cov).sqrt();
         let mut nl = 0.0_f64;
         let mut have = false;
+        let mut pair: Vec<(f64, f64, f64)> = Vec::with_capacity(2);
         for (k, probe) in prep.probes.iter().enumerate() {
             if prep.navigated.is_empty()
                 || (probe.metric != m && probe.metric != usize::MAX)
@@ -700,12 +776,27 @@ impl Context<'_> {
             {
                 continue;
             }
-            let lin_norm = (&self.blocks[h][m].s * &probe.dx).norm();
-            if probe.metric == usize::MAX && lin_norm == 0.0 {
+            let lin_norm = match &probe.linear {
+                Some(linear) => linear[h][m],
+                None => (&self.blocks[h][m].s * &probe.dx).norm(),
+            };
+            if probe.metric == usize::MAX {
+                if lin_norm > 0.0 {
+                    have = true;
+                    nl = nl.max(index(prep.navigated[k][h][m], lin_norm, probe.sigmas * spread));
+                }
                 continue;
             }
             have = true;
-            nl = nl.max(index(prep.navigated[k][h][m], lin_norm, probe_scale));
+            pair.push((prep.navigated[k][h][m], lin_norm, probe.sigmas * spread));
+            if pair.len() == 2 {
+                let (a, b) = (pair[0], pair[1]);
+                nl = nl.max(pair_index([a.0, b.0], [a.1, b.1], a.2.max(b.2)));
+                pair.clear();
+            }
+        }
+        for (navigated, linear, scale) in pair {
+            nl = nl.max(index(navigated, linear, scale));
         }
         if let Some(t) = &prep.truth_index {
             nl = nl.max(t[h][m]);
@@ -772,24 +863,12 @@ pub fn analyse_cell(
             Compensation::Estimated => ctx.estimated(),
         })
         .collect::<Result<_, _>>()?;
-    // One random rotation per component of a mixture: the directions its Gaussian is read along.
-    let axes: Vec<Vec<[Vector3<f64>; 6]>> = prepared
-        .iter()
-        .map(|prep| {
-            let components = prep.parts.len();
-            if components > 1 {
-                (0..components).map(|k| turned_axes(&random_rotation(seed, k))).collect()
-            } else {
-                vec![]
-            }
-        })
-        .collect();
     // Every compensation's rows at once, in order.
     let rows: Vec<MetricResult> = (0..prepared.len() * horizons * 4)
         .into_par_iter()
         .map(|i| {
             let (c, hm) = (i / (horizons * 4), i % (horizons * 4));
-            ctx.row(&prepared[c], &axes[c], hm / 4, hm % 4)
+            ctx.row(&prepared[c], hm / 4, hm % 4)
         })
         .collect();
     let excluded = prepared.iter().map(|p| p.excluded).sum();
