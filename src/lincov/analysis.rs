@@ -621,7 +621,7 @@ impl Context<'_> {
                 }
             }
         }
-        let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
+        let mut probe_blocks = Vec::new();
         let (mut probe_component, mut truth_index, mut navigated) = (0, None, vec![]);
         if settings.nonlinearity {
             // Sigma points of the component at the 95th percentile of the last horizon's
@@ -649,31 +649,43 @@ impl Context<'_> {
             let mut cov = calibration_with(cell, x_t, self.density, single).covariance;
             stay_in_small_error_region(&mut cov, None, x_t, &bounds);
             let cov = &cov;
-            for (m, b) in blocks[horizons - 1].iter().enumerate() {
-                if let Some(u) = principal_direction(&b.s, cov) {
-                    // As far out as the mixture's p95 at the last horizon (the row's own number),
-                    // not the probed truth's own tail beyond it.
-                    let p95 = if single {
-                        let part = &per_truth[0][horizons - 1][m];
-                        GaussNorm::new(&part.mean, &part.cov).quantile(0.95)
-                    } else {
-                        let (mix, _, share) = bounded_mixture(&per_truth, &weights, &axes, horizons - 1, m);
-                        if 0.95 < share { mix.quantile(0.95 / share) } else { f64::INFINITY }
-                    };
-                    let one_sigma = (&b.s * &u).norm();
-                    let sigmas = if p95.is_finite() && one_sigma > 0.0 { p95 / one_sigma } else { SIGMA_POINT };
-                    for sign in [1.0, -1.0] {
-                        let dx = &u * (sign * sigmas);
-                        probes.push(Probe { truth: x_t.clone(), compensation: x_t + &dx });
-                        probe_blocks.push(ProbeBlock { metric: m, horizon: None, dx, sigmas, linear: None });
-                    }
-                }
-            }
-            // The probed truth's own linearisation, beside the navigations of its probes.
+            // Per metric of the last horizon, a pair of probes along its principal direction, as far
+            // out as the mixture's p95 there (the row's own number), not the probed truth's own
+            // tail beyond it; navigated beside the probed truth's own linearisation.
+            let directions = || -> Vec<(usize, DVector<f64>, f64)> {
+                (0..blocks[horizons - 1].len())
+                    .into_par_iter()
+                    .filter_map(|m| {
+                        let b = &blocks[horizons - 1][m];
+                        let u = principal_direction(&b.s, cov)?;
+                        let p95 = if single {
+                            let part = &per_truth[0][horizons - 1][m];
+                            GaussNorm::new(&part.mean, &part.cov).quantile(0.95)
+                        } else {
+                            let (mix, _, share) = bounded_mixture(&per_truth, &weights, &axes, horizons - 1, m);
+                            if 0.95 < share { mix.quantile(0.95 / share) } else { f64::INFINITY }
+                        };
+                        let one_sigma = (&b.s * &u).norm();
+                        let sigmas = if p95.is_finite() && one_sigma > 0.0 { p95 / one_sigma } else { SIGMA_POINT };
+                        Some((m, u, sigmas))
+                    })
+                    .collect()
+            };
             let relinearised;
-            (relinearised, navigated) = rayon::join(
+            (relinearised, (probe_blocks, navigated)) = rayon::join(
                 || (!single).then(|| linearisation_at(cell, x_t)),
-                || self.navigate(&probes, &probe_blocks),
+                || {
+                    let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
+                    for (m, u, sigmas) in directions() {
+                        for sign in [1.0, -1.0] {
+                            let dx = &u * (sign * sigmas);
+                            probes.push(Probe { truth: x_t.clone(), compensation: x_t + &dx });
+                            probe_blocks.push(ProbeBlock { metric: m, horizon: None, dx, sigmas, linear: None });
+                        }
+                    }
+                    let navigated = self.navigate(&probes, &probe_blocks);
+                    (probe_blocks, navigated)
+                },
             );
             // The probes' linear prediction from the probed truth's own linearisation: the
             // index then measures the navigator's departure from it at that truth, and the
