@@ -271,19 +271,21 @@ fn reached_by(
 }
 
 /// The mixture over drawn truths of block `(h, m)`: its components that no unidentifiable
-/// parameter reaches (their indices), read along their turned `axes` with their `weights`, and
-/// the share of the weight they carry (a quantile at or above it is infinite).
+/// parameter reaches (their indices), each covariance less `less` (the noise's, for the
+/// parameters' part alone; zero for the whole), read along their turned `axes` with their
+/// `weights`, and the share of the weight they carry (a quantile at or above it is infinite).
 fn bounded_mixture(
     parts: &[Vec<Vec<Part>>],
     weights: &[f64],
     axes: &[[Vector3<f64>; 6]],
     h: usize,
     m: usize,
+    less: &Matrix3<f64>,
 ) -> (ScaleMixture, Vec<usize>, f64) {
     let bounded: Vec<usize> = (0..parts.len()).filter(|&k| parts[k][h][m].unbounded_by.is_empty()).collect();
     let mut mix = ScaleMixture::default();
     for &k in &bounded {
-        mix.add_gaussian_along(&parts[k][h][m].cov, &axes[k], weights[k]);
+        mix.add_gaussian_along(&(parts[k][h][m].cov - less), &axes[k], weights[k]);
     }
     let share = bounded.iter().map(|&k| weights[k]).sum::<f64>() / weights.iter().sum::<f64>();
     (mix, bounded, share)
@@ -658,11 +660,18 @@ impl Context<'_> {
                     .filter_map(|m| {
                         let b = &blocks[horizons - 1][m];
                         let u = principal_direction(&b.s, cov)?;
-                        let p95 = if single {
+                        // The parameters' part of the p95 (the probes move the parameters; a metric
+                        // the noise dominates would put them far out).
+                        let noise = self.noise_var * b.noise_unit;
+                        let p95 = if per_truth.len() == 1 {
                             let part = &per_truth[0][horizons - 1][m];
-                            GaussNorm::new(&part.mean, &part.cov).quantile(0.95)
+                            if part.unbounded_by.is_empty() {
+                                GaussNorm::new(&part.mean, &(part.cov - noise)).quantile(0.95)
+                            } else {
+                                f64::INFINITY
+                            }
                         } else {
-                            let (mix, _, share) = bounded_mixture(&per_truth, &weights, &axes, horizons - 1, m);
+                            let (mix, _, share) = bounded_mixture(&per_truth, &weights, &axes, horizons - 1, m, &noise);
                             if 0.95 < share { mix.quantile(0.95 / share) } else { f64::INFINITY }
                         };
                         let one_sigma = (&b.s * &u).norm();
@@ -734,7 +743,7 @@ impl Context<'_> {
         let w = &prep.weights;
         let total_weight: f64 = w.iter().sum();
         let (mix, bounded, weight) = if components > 1 {
-            bounded_mixture(parts, w, &prep.axes, h, m)
+            bounded_mixture(parts, w, &prep.axes, h, m, &Matrix3::zeros())
         } else {
             let bounded: Vec<usize> = (0..components).filter(|&k| parts[k][h][m].unbounded_by.is_empty()).collect();
             (ScaleMixture::default(), bounded, 1.0)
@@ -943,7 +952,8 @@ fn stay_in_small_error_region(
 }
 
 /// `m <- A m A^T` with `A = I - shrink beta e_i^T`. Only the rows and columns `r` with
-/// `beta[r]` or `m[r, i]` nonzero change (elsewhere the update is an exact zero), so a
+/// `beta[r]` or `m[r, i]` nonzero change (elsewhere the update is an exact zero for finite
+/// values; the caller returns before a NaN or infinite variance gets here), so a
 /// block-diagonal `m` is updated in its block alone.
 fn shrink_along(m: &mut DMatrix<f64>, beta: &[f64], i: usize, shrink: f64) {
     let n = m.nrows();

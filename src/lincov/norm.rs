@@ -377,14 +377,14 @@ fn solve_increasing(f: impl Fn(f64) -> f64, p: f64, lo: f64, hi: f64) -> f64 {
     b
 }
 
-/// The six axes of an icosahedron (its twelve vertices in antipodal pairs), unit length: a
-/// spherical 5-design.
 /// The axes of an icosahedron turned by `rotation` (the directions a Gaussian of a mixture is
 /// read along).
 pub fn turned_axes(rotation: &nalgebra::Rotation3<f64>) -> [Vector3<f64>; 6] {
     icosahedron_axes().map(|axis| rotation * axis)
 }
 
+/// The six axes of an icosahedron (its twelve vertices in antipodal pairs), unit length: a
+/// spherical 5-design.
 fn icosahedron_axes() -> [Vector3<f64>; 6] {
     let g = (1.0 + 5f64.sqrt()) / 2.0;
     [
