@@ -31,7 +31,8 @@
 //! truth's outputs) serves every horizon; at an earlier horizon that direction may move the
 //! metric little, and relative to `|S_h dx|` alone a small second-order term would then look
 //! large: hence the spread in `r`. Its probes lie as far out as the metric's p95 at the last
-//! horizon (`k = p95 / |S u|`), where the row's own upper quantile is made. For a mixture the
+//! horizon (`k = p95 / |S u|`, the parameters' part of it, without the noise), where the row's own
+//! upper quantile is made (at `SIGMA_POINT` where that p95 is infinite). For a mixture the
 //! probed truth is the one at the weighted 95th percentile of the last horizon's position
 //! variance; its navigation is also linearised again (`analysis`), the probes' linear
 //! predictions are taken from that linearisation (so they measure the navigator's departure at
