@@ -700,10 +700,11 @@ impl Context<'_> {
             // index then measures the navigator's departure from it at that truth, and the
             // sensitivity's change from the reference's is the truth index's.
             if let Some(Ok(at)) = &relinearised {
+                let at_blocks: Vec<[DMatrix<f64>; 4]> =
+                    (0..horizons).map(|h| std::array::from_fn(|m| at.block(h, m))).collect();
                 for pb in probe_blocks.iter_mut() {
-                    pb.linear = Some(
-                        (0..horizons).map(|h| std::array::from_fn(|m| (&at.block(h, m) * &pb.dx).norm())).collect(),
-                    );
+                    pb.linear =
+                        Some(at_blocks.iter().map(|hb| std::array::from_fn(|m| (&hb[m] * &pb.dx).norm())).collect());
                 }
             }
             truth_index = relinearised.map(|at| {
