@@ -54,7 +54,7 @@ impl SampleClock {
     /// The age of the sample the host reads at `t_s`, s: `0 <= age < 1 / f0`.
     pub fn age_s(&self, t_s: f64) -> f64 {
         let n = self.ticks(t_s);
-        (n - n.floor()) / self.nominal_hz
+        (n - floor(n)) / self.nominal_hz
     }
 
     /// `d age / d (rate_offset, drift_per_s, phase_s)` at `t_s`, the wraps held.
@@ -81,6 +81,27 @@ impl SampleClock {
             t_ref_s,
             ..*self
         }
+    }
+}
+
+/// `x.floor()`, the same value, without a call into the maths library: the crate is built for
+/// baseline x86-64, which has no rounding instruction, and the sample clocks' grid search
+/// ([`refine_grid`]) takes the fractional part of millions of tick counts. Beyond `2^52` every
+/// float is an integer, and NaN stays NaN through `x - floor(x)`.
+#[inline]
+fn floor(x: f64) -> f64 {
+    if x.abs() < 4.0e15 {
+        let t = x as i64 as f64;
+        // an integer (and -0.0) is its own floor
+        if t == x {
+            x
+        } else if t > x {
+            t - 1.0
+        } else {
+            t
+        }
+    } else {
+        x.floor()
     }
 }
 
@@ -294,7 +315,7 @@ pub fn refine(offsets: &Offsets, target: &[f64], start: &SampleClock, with_drift
         let mut g = nalgebra::DVector::<f64>::zeros(dim);
         for ((&t, &w), &y) in offsets.t_s.iter().zip(&offsets.weight).zip(target) {
             let n = clock.ticks(t);
-            let fr = n - n.floor();
+            let fr = n - floor(n);
             if !(0.05..=0.95).contains(&fr) {
                 continue;
             }
@@ -447,6 +468,21 @@ mod tests {
         let a51 = c.age_s(51.0 * dt);
         assert!((a51 - 16e-6).abs() < 1e-9, "{a51}");
         assert!(c.age_s(49.0 * dt) > 0.98e-3);
+    }
+
+    /// The fast floor is `f64::floor` bit for bit: negatives, integers, signed zeros, the
+    /// neighbours of integers, values beyond `2^52`, infinities and NaN.
+    #[test]
+    fn the_fast_floor_is_the_floor_bit_for_bit() {
+        let mut xs = vec![0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 3.0e15, -3.0e15, 4.1e15, -9.0e18, 1e300, -1e300];
+        xs.extend([f64::INFINITY, f64::NEG_INFINITY, f64::MIN_POSITIVE, -f64::MIN_POSITIVE, f64::NAN]);
+        for k in -2000..2000 {
+            let x = k as f64 * 0.37 + 1e-3 * (k % 7) as f64;
+            xs.extend([x, (k as f64).next_up(), (k as f64).next_down(), 123_456.789 * k as f64]);
+        }
+        for x in xs {
+            assert_eq!(floor(x).to_bits(), x.floor().to_bits(), "{x:e}");
+        }
     }
 
     #[test]

@@ -36,14 +36,9 @@ pub fn cost(sensors: &[Sensor], data: &SampleData, m: &SampleMotion) -> f64 {
 }
 
 /// Gauss-Newton from `start`; with `omega_fixed` only `f` and `alpha` are solved (then the
-/// model is linear and one step is exact). Returns the motion, its cost and the local normal
-/// matrix (the inverse is the motion's covariance given the sensor parameters).
-pub fn solve(
-    sensors: &[Sensor],
-    data: &SampleData,
-    start: SampleMotion,
-    omega_fixed: bool,
-) -> (SampleMotion, f64, SMatrix<f64, 9, 9>) {
+/// model is linear and one step is exact). Returns the motion and its cost; [`information`] gives
+/// its local normal matrix.
+pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_fixed: bool) -> (SampleMotion, f64) {
     let dim = if omega_fixed { 6 } else { 9 };
     let mut m = start;
     let mut c = cost(sensors, data, &m);
@@ -95,15 +90,20 @@ pub fn solve(
             break;
         }
     }
-    // The normal matrix at the solution.
-    h.fill(0.0);
+    (m, c)
+}
+
+/// The local normal matrix of a sample's motion (its inverse is the motion's covariance given
+/// the sensor parameters).
+pub fn information(sensors: &[Sensor], data: &SampleData, m: &SampleMotion) -> SMatrix<f64, 9, 9> {
+    let mut h = SMatrix::<f64, 9, 9>::zeros();
     for (j, s) in sensors.iter().enumerate() {
         if data.used[j] {
-            let d = SVector::<f64, 9>::from(s.d_motion(&m));
+            let d = SVector::<f64, 9>::from(s.d_motion(m));
             h.ger(data.weights[j], &d, &d, 1.0);
         }
     }
-    (m, c, h)
+    h
 }
 
 /// A first guess of the motion from the linear 12-unknown model (see the module docs).
@@ -184,16 +184,19 @@ pub fn orient_run(t_s: &[f64], motion: &mut [SampleMotion]) {
 /// scaling by the diagonal).
 pub fn information_inverse(hll: &SMatrix<f64, 9, 9>) -> SMatrix<f64, 9, 9> {
     let d = hll.diagonal().map(|v| if v > 0.0 { 1.0 / v.sqrt() } else { 0.0 });
-    let dm = SMatrix::<f64, 9, 9>::from_diagonal(&d);
-    let scaled = dm * hll * dm;
+    // `D X D` for the diagonal `D`, element by element: `(d_i x_ij) d_j`, the value the two
+    // matrix products give (their other terms are exact zeros), without the products.
+    let both_sides = |x: &SMatrix<f64, 9, 9>| SMatrix::<f64, 9, 9>::from_fn(|i, j| d[i] * x[(i, j)] * d[j]);
+    let scaled = both_sides(hll);
     let full = d.iter().all(|&v| v > 0.0);
     if full && let Some(chol) = scaled.cholesky() {
         let l = chol.l();
         let diag_min = l.diagonal().iter().fold(f64::INFINITY, |a, &b| a.min(b * b));
         if diag_min > 1e-12 {
-            return dm * chol.inverse() * dm;
+            return both_sides(&chol.inverse());
         }
     }
+    let dm = SMatrix::<f64, 9, 9>::from_diagonal(&d);
     let eig = scaled.symmetric_eigen();
     let max = eig.eigenvalues.iter().fold(0.0_f64, |a, &b| a.max(b));
     let mut inv = SMatrix::<f64, 9, 9>::zeros();

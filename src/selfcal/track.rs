@@ -27,7 +27,7 @@ use crate::array::Array;
 type SVector9 = nalgebra::SVector<f64, 9>;
 
 /// One solved sample: its motion, misfit and motion information (the 9 x 9 normal matrix).
-type Solved = (SampleMotion, f64, SMatrix<f64, 9, 9>);
+type Solved = (SampleMotion, f64);
 
 /// The motion of every sample of `d` given the sensor parameters, from scratch: the better of the
 /// linear guess and the previous sample's motion advanced by its angular acceleration, refined;
@@ -52,7 +52,7 @@ pub fn from_scratch(array: &Array, d: &DynamicData, dynamic_w: &[f64], params: &
                 if let Some(wr) = fixed {
                     st.omega_rad_s = wr;
                 }
-                let (m, c, _) = motion::solve(&sens, &data, st, fixed.is_some());
+                let (m, c) = motion::solve(&sens, &data, st, fixed.is_some());
                 if best.is_none_or(|(_, bc)| c < bc) {
                     best = Some((m, c));
                 }
@@ -103,8 +103,11 @@ pub fn refine(
     } else {
         first
             .par_iter()
-            .map(|(_, _, h)| {
-                let y = motion::information_inverse(h);
+            .enumerate()
+            .map(|(i, (m, _))| {
+                let outputs = row(i);
+                let data = SampleData { outputs: &outputs, used: &d.used[i * n..(i + 1) * n], weights: dynamic_w };
+                let y = motion::information_inverse(&motion::information(&sens, &data, m));
                 ((6..9).map(|c| y[(c, c)]).sum(), (3..6).map(|c| y[(c, c)]).sum())
             })
             .collect()
@@ -125,7 +128,7 @@ pub fn refine(
     let mut out: Vec<SampleMotion> = (0..d.samples())
         .into_par_iter()
         .map(|i| {
-            let (mut best, mut best_cost, _) = first[i];
+            let (mut best, mut best_cost) = first[i];
             let used = d.used[i * n..(i + 1) * n].iter().filter(|&&u| u).count() as f64;
             let stands_out = best_cost > 5.0 * median && best_cost > 4.0 * used;
             let suspect = stands_out || (repair && breaks_continuity(i));
@@ -146,7 +149,7 @@ pub fn refine(
                 if let Some(r) = &d.reference_rate_rad_s {
                     st.omega_rad_s = r[i];
                 }
-                let (m, c, _) = motion::solve(&sens, &data, st, fixed);
+                let (m, c) = motion::solve(&sens, &data, st, fixed);
                 if c < best_cost {
                     best = m;
                     best_cost = c;
