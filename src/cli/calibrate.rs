@@ -182,6 +182,28 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
         rms(&fit.dynamic_residual_rms_m_s2),
         fit.dynamic_chi2_dof
     );
+    if let Some(t) = &cal.static_tension {
+        let _ = writeln!(
+            s,
+            "static phase refitted alone (poses held): chi2/dof {:.2} (as fitted {:.2}); the biases, scale factors and tilts move by {:.2} printed sigmas RMS{}; the joint fit's pull on them chi2 {:.1} on {} dof (p = {:.1e}){}",
+            t.chi2_dof_static_only,
+            fit.static_chi2_dof,
+            t.move_rms_sigma,
+            t.largest.map_or(String::new(), |(j, p, v)| format!(
+                ", most accelerometer {} {} ({v:+.2})",
+                j + 1,
+                gfcal::selfcal::model::NAMES[p]
+            )),
+            t.pull_chi2,
+            t.pull_dof,
+            t.pull_p_value,
+            if t.pull_p_value < 1e-3 {
+                ": the rotation phase pulls them from what the static poses say, beyond its noise"
+            } else {
+                ""
+            }
+        );
+    }
     if let Some(c) = &cal.clocks {
         let _ = writeln!(
             s,

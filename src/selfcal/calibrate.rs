@@ -18,6 +18,7 @@ use super::model::sensors;
 use super::recording::Recording;
 use super::robust::robust_covariance;
 use super::segment::{DetectorSettings, Interval, Segmentation, segment};
+use super::tension::{StaticTension, static_tension};
 use super::timing::{ClockEstimate, ClockProblem, SigmaCheck, TIMING_UNKNOWNS_PER_SAMPLE, gyro_offsets, host_dt_s};
 use crate::array::wiring::RecordingArray;
 
@@ -91,6 +92,9 @@ pub struct Calibration {
     /// What would make the parameters the recording cannot identify identifiable, in words
     /// (`selfcal::geometry::remedies`); empty when every parameter is identified.
     pub to_identify: Vec<String>,
+    /// The static phase refitted alone against the joint fit (`selfcal::tension`), where a
+    /// rotation phase was fitted with the static one.
+    pub static_tension: Option<StaticTension>,
 }
 
 /// The static means and pooled per-sample scatter of every interval. An output at or beyond its
@@ -183,7 +187,9 @@ pub fn calibrate(
     } else {
         Vec::new()
     };
+    let static_tension = dynamic.map(|_| static_tension(&array.array, &stat, &fit, settings.fit.gravity_m_s2));
     Ok(Calibration {
+        static_tension,
         segmentation: seg,
         fit,
         static_data: stat,

@@ -14,6 +14,7 @@
 //!   over blocks of samples (a clocked calibration's); [`unseen`]: what it cannot see beyond the
 //!   gauge; [`geometry`]: what an array's geometry cannot see, on synthetic data;
 //! - [`misfit`]: the rotation phase's chi^2/dof, one metric for calibrate and diagnose;
+//! - [`tension`]: the static phase refitted alone, against the joint fit;
 //! - [`calibrate`]: the workflow; [`output`]: its JSON; [`assessment`]: what to trust in it.
 
 pub mod assessment;
@@ -32,6 +33,7 @@ pub mod robust;
 pub mod sampling;
 pub mod segment;
 pub mod simulate;
+pub mod tension;
 pub mod timing;
 pub mod track;
 pub mod unseen;

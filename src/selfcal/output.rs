@@ -4,7 +4,10 @@
 //! `scale_factor` is the gain along the true unit axis and `bias` is input-referred; `dx, dy, dz`
 //! are location errors, true minus nominal position; `sigma` is null for a parameter the recording
 //! cannot identify), `poses: [{start_s, end_s, up_x, up_y, up_z}]`, `static: {intervals,
-//! chi2_dof, residual_rms_m_s2}`, `dynamic: {samples, clipped, residual_rms_m_s2}`, `gyro_check:
+//! chi2_dof, residual_rms_m_s2, tension}` (`tension: {chi2_dof_static_only, move_rms_sigma,
+//! largest: {accelerometer, name, move_sigma}, pull_chi2, pull_dof, pull_p_value}` with a
+//! rotation phase, else null:
+//! `selfcal::tension`), `dynamic: {samples, clipped, residual_rms_m_s2}`, `gyro_check:
 //! {samples, rms_rad_s, relative}` (when reference gyroscopes are given), and further keys that
 //! say how the result was obtained. A parameter the recording cannot identify (a location without
 //! a rotation phase, or one with a share in a combination the Fisher information cannot see beyond
@@ -79,6 +82,14 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
             "residual_rms_m_s2": num(fit.static_residual_rms_m_s2),
             "variance_factor": num(fit.static_variance_factor),
             "noise_sigma_m_s2": cal.static_data.sigma,
+            "tension": cal.static_tension.as_ref().map(|t| json!({
+                "chi2_dof_static_only": num(t.chi2_dof_static_only),
+                "move_rms_sigma": num(t.move_rms_sigma),
+                "largest": t.largest.map(|(j, p, v)| json!({"accelerometer": j + 1, "name": NAMES[p], "move_sigma": num(v)})),
+                "pull_chi2": num(t.pull_chi2),
+                "pull_dof": t.pull_dof,
+                "pull_p_value": num(t.pull_p_value),
+            })),
         },
         "dynamic": {
             "samples": cal.dynamic_index.len(),
