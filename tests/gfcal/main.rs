@@ -22,3 +22,4 @@ mod report;
 mod sample_rates;
 mod selfcal;
 mod simulate;
+mod static_tension;
