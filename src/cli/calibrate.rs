@@ -197,7 +197,7 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
             t.pull_chi2,
             t.pull_dof,
             t.pull_p_value,
-            if t.pull_p_value < 1e-3 {
+            if t.pulls() {
                 ": the rotation phase pulls them from what the static poses say, beyond its noise"
             } else {
                 ""

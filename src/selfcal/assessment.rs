@@ -10,6 +10,10 @@
 //!   beyond it the model, not the noise, leaves the residual, and the parameters it drives are
 //!   not trustworthy;
 //! - a kind with any unidentified parameter is not trustworthy;
+//! - scale factors, biases and tilts that the rotation phase pulls from what the static poses say
+//!   (`selfcal::tension`, its pull's p-value below [`super::tension::PULL_P_LEVEL`]) are not
+//!   trustworthy, whatever the static misfit (that level chosen after the real recording 4 was
+//!   seen);
 //! - the gyroscope-free rate is trustworthy only when it meets the gyroscopes within
 //!   [`RATE_LIMIT`] (RMS difference over RMS rate), when the array has gyroscopes.
 
@@ -74,6 +78,18 @@ pub fn assess(cal: &Calibration, held_static_chi2_dof: &[f64]) -> Vec<Verdict> {
                 format!(
                     "not trustworthy: {missing} of {} unidentified (combinations the data cannot see)",
                     n * ps.len()
+                ),
+            )
+        } else if let Some(t) = cal.static_tension.as_ref().filter(|t| t.pulls()) {
+            verdict(
+                kind,
+                false,
+                format!(
+                    "not trustworthy: the rotation phase pulls them from what the static poses say (static chi^2/dof {} as fitted, {} refitted alone; pull chi^2 {} on {} dof)",
+                    times(static_x),
+                    times(t.chi2_dof_static_only),
+                    times(t.pull_chi2),
+                    t.pull_dof
                 ),
             )
         } else if !(static_x <= MISFIT_LIMIT) {

@@ -44,6 +44,17 @@ pub struct StaticTension {
     pub pull_p_value: f64,
 }
 
+impl StaticTension {
+    /// Whether the rotation phase pulls the static parameters beyond its noise.
+    pub fn pulls(&self) -> bool {
+        self.pull_p_value < PULL_P_LEVEL
+    }
+}
+
+/// The pull's p-value below which the rotation phase is said to pull the static parameters (the
+/// text and `selfcal::assessment`; chosen after the real recording 4 was seen, see the module docs).
+pub const PULL_P_LEVEL: f64 = 1e-3;
+
 /// Gauss-Newton steps of each accelerometer's static refit (the model is linear in `k` and `b`
 /// and nearly so in the tilts, a few mrad: three steps reach rounding).
 const STEPS: usize = 4;
