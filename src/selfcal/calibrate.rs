@@ -18,7 +18,7 @@ use super::model::sensors;
 use super::recording::Recording;
 use super::robust::robust_covariance;
 use super::segment::{DetectorSettings, Interval, Segmentation, segment};
-use super::tension::{StaticTension, static_tension};
+use super::tension::{StaticTension, tension_at};
 use super::timing::{ClockEstimate, ClockProblem, SigmaCheck, TIMING_UNKNOWNS_PER_SAMPLE, gyro_offsets, host_dt_s};
 use crate::array::wiring::RecordingArray;
 
@@ -187,7 +187,9 @@ pub fn calibrate(
     } else {
         Vec::new()
     };
-    let static_tension = dynamic.map(|_| static_tension(&array.array, &stat, &fit, settings.fit.gravity_m_s2));
+    let static_tension = dynamic.map(|_| {
+        tension_at(&array.array, &stat, &fit.params, &fit.up, &|j, p| fit.sigma(j, p), settings.fit.gravity_m_s2)
+    });
     Ok(Calibration {
         static_tension,
         segmentation: seg,

@@ -16,7 +16,6 @@
 use nalgebra::{Matrix4, Vector3, Vector4};
 
 use super::data::StaticData;
-use super::fit::Fit;
 use super::model::{SensorSet, sensors};
 use crate::array::Array;
 
@@ -59,27 +58,21 @@ pub const PULL_P_LEVEL: f64 = 1e-3;
 /// and nearly so in the tilts, a few mrad: three steps reach rounding).
 const STEPS: usize = 4;
 
-/// The check at a joint fit (see the module docs); `gravity_m_s2` as the fit used it.
-pub fn static_tension(array: &Array, stat: &StaticData, fit: &Fit, gravity_m_s2: f64) -> StaticTension {
-    tension_at(array, stat, &fit.params, &fit.up, &|j, p| fit.sigma(j, p), gravity_m_s2)
-}
-
-/// The check at parameters `joint` and poses `up`, with the printed sigmas `sigma(j, p)`.
-fn tension_at(
+/// Each accelerometer's `(k, b, tilt_u, tilt_w)` refitted to its static pose means alone, the
+/// poses `up` held, from `joint`; with, per accelerometer, whether the static phase fixed them (an
+/// accelerometer it cannot fix alone keeps `joint`'s values).
+pub fn refit_static(
     array: &Array,
     stat: &StaticData,
     joint: &SensorSet,
     up: &[Vector3<f64>],
-    sigma: &dyn Fn(usize, usize) -> f64,
     gravity_m_s2: f64,
-) -> StaticTension {
+) -> (SensorSet, Vec<bool>) {
     let n = array.len();
-    let poses = up.len();
     let mut params = joint.clone();
-    let mut move_sigma = vec![[f64::NAN; 4]; n];
-    for (j, moves) in move_sigma.iter_mut().enumerate() {
+    let mut solved = vec![true; n];
+    for (j, ok) in solved.iter_mut().enumerate() {
         let weight = |p: usize| stat.counts[p] as f64 / stat.sigma[j].powi(2);
-        let mut solved = true;
         for _ in 0..STEPS {
             let s = &sensors(array, &params)[j];
             let mut h = Matrix4::<f64>::zeros();
@@ -92,20 +85,60 @@ fn tension_at(
                 g.axpy(weight(p) * r, &d, 1.0);
             }
             let Some(step) = solve_scaled(&h, &g) else {
-                solved = false;
+                *ok = false;
                 break;
             };
             for (p, d) in step.iter().enumerate() {
                 params.add(j, p, *d);
             }
         }
-        if !solved {
-            // A static phase that cannot fix this accelerometer alone: its parameters stay.
+        if !*ok {
             for p in 0..4 {
                 params.add(j, p, joint.get(j, p) - params.get(j, p));
             }
-            continue;
         }
+    }
+    (params, solved)
+}
+
+/// The static phase's degrees of freedom: `N P` means less `4 N + 2 P - 3` parameters (as the
+/// joint fit counts them), at least 1.
+fn static_dof(n: usize, poses: usize) -> f64 {
+    ((n * poses) as f64 - (4 * n + 2 * poses) as f64 + 3.0).max(1.0)
+}
+
+/// The static chi^2/dof with [`refit_static`]'s parameters: the static phase's scatter about its
+/// own best fit (the joint fit's degrees of freedom), NaN where no accelerometer is refitted.
+pub fn static_only_chi2_dof(
+    array: &Array,
+    stat: &StaticData,
+    joint: &SensorSet,
+    up: &[Vector3<f64>],
+    gravity_m_s2: f64,
+) -> f64 {
+    let (params, solved) = refit_static(array, stat, joint, up, gravity_m_s2);
+    if !solved.iter().any(|&s| s) {
+        return f64::NAN;
+    }
+    static_chi2(array, stat, &params, up, gravity_m_s2) / static_dof(array.len(), up.len())
+}
+
+/// The check at parameters `joint` and poses `up`, with the printed sigmas `sigma(j, p)` (for a
+/// joint fit `fit`: `&fit.params`, `&fit.up`, `|j, p| fit.sigma(j, p)`); `gravity_m_s2` as the
+/// fit used it.
+pub fn tension_at(
+    array: &Array,
+    stat: &StaticData,
+    joint: &SensorSet,
+    up: &[Vector3<f64>],
+    sigma: &dyn Fn(usize, usize) -> f64,
+    gravity_m_s2: f64,
+) -> StaticTension {
+    let n = array.len();
+    let poses = up.len();
+    let (params, solved) = refit_static(array, stat, joint, up, gravity_m_s2);
+    let mut move_sigma = vec![[f64::NAN; 4]; n];
+    for (j, moves) in move_sigma.iter_mut().enumerate().filter(|(j, _)| solved[*j]) {
         for (p, m) in moves.iter_mut().enumerate() {
             let sigma = sigma(j, p);
             if sigma.is_finite() && sigma > 0.0 {
@@ -114,8 +147,8 @@ fn tension_at(
         }
     }
     let chi2 = static_chi2(array, stat, &params, up, gravity_m_s2);
-    let dof = ((n * poses) as f64 - (4 * n + 2 * poses) as f64 + 3.0).max(1.0);
-    let refitted = move_sigma.iter().filter(|m| m.iter().any(|v| v.is_finite())).count();
+    let dof = static_dof(n, poses);
+    let refitted = solved.iter().filter(|&&s| s).count();
     let pull_chi2 = (static_chi2(array, stat, joint, up, gravity_m_s2) - chi2) / (chi2 / dof).max(1.0);
     let pull_dof = 4 * refitted;
     let pull_p_value = crate::stats::chi2_sf(pull_chi2.max(0.0), pull_dof as f64).unwrap_or(f64::NAN);
@@ -128,7 +161,7 @@ fn tension_at(
         .filter(|(_, _, v)| v.is_finite())
         .max_by(|a, b| a.2.abs().total_cmp(&b.2.abs()));
     StaticTension {
-        chi2_dof_static_only: if finite.is_empty() { f64::NAN } else { chi2 / dof },
+        chi2_dof_static_only: if refitted == 0 { f64::NAN } else { chi2 / dof },
         move_sigma,
         move_rms_sigma: if finite.is_empty() { f64::NAN } else { move_rms_sigma },
         largest,
