@@ -28,6 +28,7 @@ use super::data::{DynamicData, StaticData};
 use super::misfit;
 use super::model::{Gauge, PER_ACCEL, SampleMotion, Sensor, SensorSet, sensors};
 use super::motion::{self, SampleData};
+use super::tension;
 use super::track;
 use super::unseen::{Combination, NULL_RELATIVE, Unseen, unseen};
 use crate::array::Array;
@@ -258,9 +259,19 @@ pub fn fit_from(
         );
         iterations += it;
         converged = ok;
-        // Variance components.
+        // Variance components. The static phase's: its scatter about its own best fit
+        // (`selfcal::tension::static_only_chi2_dof`, the poses held), not about the joint fit's.
+        // Where the rotation phase pulls the intrinsic parameters away from what the static poses
+        // say, the joint fit's static chi^2 grows with the pull; taken as the static variance it
+        // lowers the static weight, which lets the rotation phase pull further (recording 4 of the
+        // MIMU4444 ran to a static chi^2/dof of 71 so, where the static phase alone fits to 2.06).
         let (chi2, dof) = static_chi2(array, stat, &state, settings, stat.counts.as_slice());
-        let new_factor = (chi2 / dof).max(1.0);
+        let own = if with_dynamic {
+            tension::static_only_chi2_dof(array, stat, &state.params, &state.up, settings.gravity_m_s2)
+        } else {
+            f64::NAN
+        };
+        let new_factor = if own.is_finite() { own } else { chi2 / dof }.max(1.0);
         let mut changed = (new_factor / static_factor - 1.0).abs() > 0.01;
         static_factor = new_factor;
         weights.static_w =
