@@ -21,6 +21,7 @@
 
 use super::calibrate::Calibration;
 use super::model::PER_ACCEL;
+use super::tension::StaticTension;
 
 /// Misfit (chi^2/dof) above which a phase is not fitted by the model.
 pub const MISFIT_LIMIT: f64 = 10.0;
@@ -57,6 +58,20 @@ fn times(x: f64) -> String {
     if r < 0 { format!("-{out}") } else { out }
 }
 
+/// Why the intrinsic kinds are not trustworthy when the rotation phase pulls them (`None` when it
+/// does not).
+fn pull_reason(t: &StaticTension, static_x: f64) -> Option<String> {
+    t.pulls().then(|| {
+        format!(
+            "not trustworthy: the rotation phase pulls them from what the static poses say (static chi^2/dof {} as fitted, {} refitted alone; pull chi^2 {} on {} dof)",
+            times(static_x),
+            times(t.chi2_dof_static_only),
+            times(t.pull_chi2),
+            t.pull_dof
+        )
+    })
+}
+
 /// The verdicts of a calibration (module docs); `held_static_chi2_dof` are the held-out
 /// recordings' static misfits.
 pub fn assess(cal: &Calibration, held_static_chi2_dof: &[f64]) -> Vec<Verdict> {
@@ -80,18 +95,8 @@ pub fn assess(cal: &Calibration, held_static_chi2_dof: &[f64]) -> Vec<Verdict> {
                     n * ps.len()
                 ),
             )
-        } else if let Some(t) = cal.static_tension.as_ref().filter(|t| t.pulls()) {
-            verdict(
-                kind,
-                false,
-                format!(
-                    "not trustworthy: the rotation phase pulls them from what the static poses say (static chi^2/dof {} as fitted, {} refitted alone; pull chi^2 {} on {} dof)",
-                    times(static_x),
-                    times(t.chi2_dof_static_only),
-                    times(t.pull_chi2),
-                    t.pull_dof
-                ),
-            )
+        } else if let Some(reason) = cal.static_tension.as_ref().and_then(|t| pull_reason(t, static_x)) {
+            verdict(kind, false, reason)
         } else if !(static_x <= MISFIT_LIMIT) {
             verdict(
                 kind,
@@ -188,5 +193,25 @@ mod tests {
         assert_eq!(super::times(2.04), "2.0");
         assert_eq!(super::times(1234567.0), "1,234,567");
         assert_eq!(super::times(35.2), "35");
+    }
+
+    /// A pull below the level names the static misfit as fitted and alone and the test; one above
+    /// it gives no reason (the other rules decide).
+    #[test]
+    fn a_pulled_static_phase_is_said_to_be_pulled() {
+        let mut t = super::StaticTension {
+            chi2_dof_static_only: 2.06,
+            move_sigma: vec![[0.0; 4]; 24],
+            move_rms_sigma: 2.0,
+            largest: None,
+            pull_chi2: 11638.5,
+            pull_dof: 96,
+            pull_p_value: 0.0,
+        };
+        let reason = super::pull_reason(&t, 71.21).expect("pulled");
+        assert!(reason.contains("pulls them") && reason.contains("71 as fitted, 2.1 refitted alone"), "{reason}");
+        assert!(reason.contains("pull chi^2 11,639 on 96 dof"), "{reason}");
+        t.pull_p_value = 2.0 * super::super::tension::PULL_P_LEVEL;
+        assert_eq!(super::pull_reason(&t, 71.21), None);
     }
 }

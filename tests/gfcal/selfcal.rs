@@ -357,13 +357,17 @@ fn real_recordings_calibrate_with_the_expected_segmentation_and_gauge() {
         assert_eq!(cal.segmentation.dynamic_intervals.len(), 1, "recording {k}: one rotation phase");
         assert_eq!(cal.fit.null_directions, 7, "recording {k}");
         // Expectation 2 (static chi^2/dof within 1-10) failed on recordings 4 and 6 (35 and 18):
-        // reported in results/mimu4444/README.md, not asserted, and the threshold not moved.
+        // reported in results/mimu4444/README.md, not asserted, and the threshold not moved. Since
+        // the static variance component comes from the static phase's own refit (2026-11-27)
+        // recording 4 is at 2.1 (below); recording 6 at 17.5 (a bias drift in time).
         assert!(cal.gyro_check.is_some());
-        // The static tension check (selfcal::tension), written before this array (without the
-        // clocks) was run with it: with the clocks it flags recording 4 alone (pull chi^2 11,638
-        // on 96 dof; recording 6 p = 0.025, the others p = 1), and the rotation phase without the
-        // clocks misfits more, so recording 4 is flagged here too and recordings 2, 3 and 5 are
-        // not; a flagged recording's intrinsic kinds say why.
+        // The static tension check (selfcal::tension). Written before this array (without the
+        // clocks) was run with it: with the clocks it flagged recording 4 alone (pull chi^2 11,638
+        // on 96 dof), and without them too (6,827). That pull was the static variance component
+        // taken from the joint fit's static chi^2: since it is taken from the static phase's own
+        // refit (2026-11-27), recording 4 calibrates with the clocks to a static chi^2/dof of 2.22
+        // and pull chi^2 26 (p = 1). Written before this test was run again: no recording is
+        // flagged, and recording 4's static chi^2/dof is below 10 (expectation 2 met there).
         let tension = cal.static_tension.as_ref().expect("a rotation phase, so a tension check");
         eprintln!(
             "recording {k}: static chi2/dof {:.2} fitted, {:.2} alone; pull chi2 {:.1} on {} dof, p {:.2e}",
@@ -373,16 +377,9 @@ fn real_recordings_calibrate_with_the_expected_segmentation_and_gauge() {
             tension.pull_dof,
             tension.pull_p_value
         );
-        match k {
-            4 => assert!(tension.pulls(), "recording 4: p {}", tension.pull_p_value),
-            2 | 3 | 5 => assert!(!tension.pulls(), "recording {k}: p {}", tension.pull_p_value),
-            _ => {}
-        }
-        if tension.pulls() {
-            let verdicts = gfcal::selfcal::assessment::assess(&cal, &[]);
-            for v in verdicts.iter().filter(|v| ["scale_factors", "biases", "tilts"].contains(&v.kind)) {
-                assert!(!v.trustworthy && v.reason.contains("the rotation phase pulls them"), "recording {k}: {v:?}");
-            }
+        assert!(!tension.pulls(), "recording {k}: p {}", tension.pull_p_value);
+        if k == 4 {
+            assert!(cal.fit.static_chi2_dof < 10.0, "recording 4: static chi2/dof {}", cal.fit.static_chi2_dof);
         }
     }
 }
