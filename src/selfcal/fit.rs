@@ -269,13 +269,18 @@ pub fn fit_from(
         // say, the joint fit's static chi^2 grows with the pull; taken as the static variance it
         // lowers the static weight, which lets the rotation phase pull further (recording 4 of the
         // MIMU4444 ran to a static chi^2/dof of 71 so, where the static phase alone fits to 2.06).
-        let (chi2, dof) = static_chi2(array, stat, &state, settings, stat.counts.as_slice());
         let own = if with_dynamic {
             tension::static_only_chi2_dof(array, stat, &state.params, &state.up, settings.gravity_m_s2)
         } else {
             f64::NAN
         };
-        let new_factor = if own.is_finite() { own } else { chi2 / dof }.max(1.0);
+        let new_factor = if own.is_finite() {
+            own
+        } else {
+            let (chi2, dof) = static_chi2(array, stat, &state, settings);
+            chi2 / dof
+        }
+        .max(1.0);
         let mut changed = (new_factor / static_factor - 1.0).abs() > 0.01;
         static_factor = new_factor;
         weights.static_w =
@@ -319,7 +324,7 @@ pub fn fit_from(
         }
         None => Vec::new(),
     };
-    let (chi2, dof) = static_chi2(array, stat, &state, settings, stat.counts.as_slice());
+    let (chi2, dof) = static_chi2(array, stat, &state, settings);
     let static_residual_rms_m_s2 = static_rms(array, stat, &state, settings);
     let (dyn_rms, dyn_chi2_dof) = match dynamic.filter(|_| with_dynamic) {
         Some(d) => {
@@ -802,26 +807,10 @@ fn count_null(h: &DMatrix<f64>, active: &[bool]) -> (usize, Vec<f64>) {
     (eig.iter().filter(|&&e| e < NULL_RELATIVE * max).count(), smallest)
 }
 
-fn static_chi2(
-    array: &Array,
-    stat: &StaticData,
-    state: &State,
-    settings: &FitSettings,
-    counts: &[usize],
-) -> (f64, f64) {
-    let sens = sensors(array, &state.params);
-    let n = array.len();
-    let mut chi2 = 0.0;
-    for (p, u) in state.up.iter().enumerate() {
-        let q = u * settings.gravity_m_s2;
-        for (j, s) in sens.iter().enumerate() {
-            let r = stat.means[(p, j)] - s.output(&q);
-            chi2 += r * r * counts[p] as f64 / stat.sigma[j].powi(2);
-        }
-    }
-    let poses = state.up.len();
-    let dof = (n * poses) as f64 - (4 * n + 2 * poses) as f64 + 3.0;
-    (chi2, dof.max(1.0))
+/// The joint fit's static chi^2 and its degrees of freedom (`selfcal::tension`'s, at the state).
+fn static_chi2(array: &Array, stat: &StaticData, state: &State, settings: &FitSettings) -> (f64, f64) {
+    let chi2 = tension::static_chi2(array, stat, &state.params, &state.up, settings.gravity_m_s2);
+    (chi2, tension::static_dof(array.len(), state.up.len()))
 }
 
 fn static_rms(array: &Array, stat: &StaticData, state: &State, settings: &FitSettings) -> f64 {

@@ -94,13 +94,13 @@ pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_f
 }
 
 /// The local normal matrix of a sample's motion (its inverse is the motion's covariance given
-/// the sensor parameters).
-pub fn information(sensors: &[Sensor], data: &SampleData, m: &SampleMotion) -> SMatrix<f64, 9, 9> {
+/// the sensor parameters): it reads which outputs are `used` and their `weights`, not the outputs.
+pub fn information(sensors: &[Sensor], used: &[bool], weights: &[f64], m: &SampleMotion) -> SMatrix<f64, 9, 9> {
     let mut h = SMatrix::<f64, 9, 9>::zeros();
     for (j, s) in sensors.iter().enumerate() {
-        if data.used[j] {
+        if used[j] {
             let d = SVector::<f64, 9>::from(s.d_motion(m));
-            h.ger(data.weights[j], &d, &d, 1.0);
+            h.ger(weights[j], &d, &d, 1.0);
         }
     }
     h
@@ -179,7 +179,7 @@ pub fn orient_run(t_s: &[f64], motion: &mut [SampleMotion]) {
     }
 }
 
-/// Inverse of one sample's motion information (the 9 x 9 normal matrix of `solve`), or its pseudo-inverse when some motion direction
+/// Inverse of one sample's motion information (the 9 x 9 normal matrix, [`information`]), or its pseudo-inverse when some motion direction
 /// is not observed (an exactly zero column, or an eigenvalue below `1e-12` of the largest after
 /// scaling by the diagonal).
 pub fn information_inverse(hll: &SMatrix<f64, 9, 9>) -> SMatrix<f64, 9, 9> {

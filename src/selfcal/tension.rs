@@ -77,10 +77,14 @@ pub fn refit_static(
     let n = array.len();
     let mut params = joint.clone();
     let mut solved = vec![true; n];
-    for (j, ok) in solved.iter_mut().enumerate() {
-        let weight = |p: usize| stat.counts[p] as f64 / stat.sigma[j].powi(2);
-        for _ in 0..STEPS {
-            let s = &sensors(array, &params)[j];
+    for _ in 0..STEPS {
+        // One accelerometer's step reads only its own sensor: the sensors built once a step.
+        let sens = sensors(array, &params);
+        for (j, s) in sens.iter().enumerate() {
+            if !solved[j] {
+                continue;
+            }
+            let weight = |p: usize| stat.counts[p] as f64 / stat.sigma[j].powi(2);
             let mut h = Matrix4::<f64>::zeros();
             let mut g = Vector4::<f64>::zeros();
             for (p, u) in up.iter().enumerate() {
@@ -90,18 +94,19 @@ pub fn refit_static(
                 h.ger(weight(p), &d, &d, 1.0);
                 g.axpy(weight(p) * r, &d, 1.0);
             }
-            let Some(step) = solve_scaled(&h, &g) else {
-                *ok = false;
-                break;
-            };
-            for (p, d) in step.iter().enumerate() {
-                params.add(j, p, *d);
+            match solve_scaled(&h, &g) {
+                Some(step) => {
+                    for (p, d) in step.iter().enumerate() {
+                        params.add(j, p, *d);
+                    }
+                }
+                None => solved[j] = false,
             }
         }
-        if !*ok {
-            for p in 0..4 {
-                params.add(j, p, joint.get(j, p) - params.get(j, p));
-            }
+    }
+    for j in (0..n).filter(|&j| !solved[j]) {
+        for p in 0..4 {
+            params.add(j, p, joint.get(j, p) - params.get(j, p));
         }
     }
     (params, solved)
@@ -109,7 +114,7 @@ pub fn refit_static(
 
 /// The static phase's degrees of freedom: `N P` means less `4 N + 2 P - 3` parameters (as the
 /// joint fit counts them), at least 1.
-fn static_dof(n: usize, poses: usize) -> f64 {
+pub(super) fn static_dof(n: usize, poses: usize) -> f64 {
     ((n * poses) as f64 - (4 * n + 2 * poses) as f64 + 3.0).max(1.0)
 }
 
@@ -194,7 +199,13 @@ fn solve_scaled(h: &Matrix4<f64>, g: &Vector4<f64>) -> Option<Vector4<f64>> {
 }
 
 /// The static chi^2 of `params` at the poses `up` (per-sample noise over each mean's count).
-fn static_chi2(array: &Array, stat: &StaticData, params: &SensorSet, up: &[Vector3<f64>], gravity_m_s2: f64) -> f64 {
+pub(super) fn static_chi2(
+    array: &Array,
+    stat: &StaticData,
+    params: &SensorSet,
+    up: &[Vector3<f64>],
+    gravity_m_s2: f64,
+) -> f64 {
     let sens = sensors(array, params);
     let mut chi2 = 0.0;
     for (p, u) in up.iter().enumerate() {

@@ -26,7 +26,7 @@ use crate::array::Array;
 
 type SVector9 = nalgebra::SVector<f64, 9>;
 
-/// One solved sample: its motion, misfit and motion information (the 9 x 9 normal matrix).
+/// One solved sample: its motion and misfit.
 type Solved = (SampleMotion, f64);
 
 /// The motion of every sample of `d` given the sensor parameters, from scratch: the better of the
@@ -105,9 +105,8 @@ pub fn refine(
             .par_iter()
             .enumerate()
             .map(|(i, (m, _))| {
-                let outputs = row(i);
-                let data = SampleData { outputs: &outputs, used: &d.used[i * n..(i + 1) * n], weights: dynamic_w };
-                let y = motion::information_inverse(&motion::information(&sens, &data, m));
+                let y =
+                    motion::information_inverse(&motion::information(&sens, &d.used[i * n..(i + 1) * n], dynamic_w, m));
                 ((6..9).map(|c| y[(c, c)]).sum(), (3..6).map(|c| y[(c, c)]).sum())
             })
             .collect()
