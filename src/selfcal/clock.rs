@@ -265,7 +265,8 @@ fn linear_part(offsets: &Offsets, target: &[f64], clock: &SampleClock) -> (f64, 
 /// A grid around `start` over rate offset (+-`rate_span`), drift (+-`drift_span`, 1/s; none
 /// when 0) and phase (+-0.2 of a period), shrunk four times per level over three levels, the
 /// amplitude and constant solved linearly at every point. The misfit jumps where a wrap moves
-/// past a sample, so a grid, not a gradient, finds its basin.
+/// past a sample, so a grid, not a gradient, finds its basin. Every phase of a (rate, drift)
+/// point is scored at once by [`PhaseScan`].
 pub fn refine_grid(
     offsets: &Offsets,
     target: &[f64],
@@ -277,18 +278,20 @@ pub fn refine_grid(
     let mut best = *start;
     let (_, _, mut best_cost) = linear_part(offsets, target, &best);
     let (mut de, mut dd, mut dp) = (rate_span, drift_span, 0.2 * period);
+    let mut scan = PhaseScan::new(offsets, target);
     for _level in 0..3 {
         let center = best;
         let (ne, nd, np) = (8i32, if drift_span > 0.0 { 6 } else { 0 }, 16i32);
         for ie in -ne..=ne {
             for id in -nd..=nd {
+                let base = center.moved([de * ie as f64 / ne as f64, dd * id as f64 / nd.max(1) as f64, 0.0]);
+                let step_s = dp / np as f64;
+                scan.bin(offsets, &base, step_s, np as usize);
                 for ip in -np..=np {
-                    let d = [de * ie as f64 / ne as f64, dd * id as f64 / nd.max(1) as f64, dp * ip as f64 / np as f64];
-                    let c = center.moved(d);
-                    let (_, _, cost) = linear_part(offsets, target, &c);
+                    let cost = scan.cost(ip);
                     if cost < best_cost {
                         best_cost = cost;
-                        best = c;
+                        best = base.moved([0.0, 0.0, step_s * ip as f64]);
                     }
                 }
             }
@@ -300,6 +303,140 @@ pub fn refine_grid(
     let (amplitude, constant_s, cost) = linear_part(offsets, target, &best);
     let amplitude_sigma = amplitude_sigma(offsets, target, &best);
     OffsetFit { clock: best, amplitude, amplitude_sigma, constant_s, cost, count: offsets.t_s.len() }
+}
+
+/// [`linear_part`]'s cost at one clock and every phase shift `k h`, `|k| <= K`, in one pass
+/// over the offsets instead of `2K + 1`. With `u = frac(n)` a sample's ticks into its period at
+/// the unshifted clock, the shifted age is `(u + k h f0 - c) / f0` where `c` is 1 for the samples
+/// the shift wraps forward (`u + k h f0 >= 1`) and -1 for those it wraps back (`u + k h f0 < 0`).
+/// Those are the samples whose `u` passes a threshold, so each sample is binned once by the first
+/// shift that wraps it, and the wrapped samples' sums of `w`, `w u` and `w y` at every shift are
+/// running sums over the bins; the moments of the age follow from them exactly.
+struct PhaseScan {
+    /// Totals over the samples: `w`, `w y`, `w y^2` (independent of the clock).
+    s1: f64,
+    sy: f64,
+    syy: f64,
+    /// Totals of `w u`, `w u^2`, `w u y` at the unshifted clock.
+    su: f64,
+    suu: f64,
+    suy: f64,
+    /// Per shift `k` (0..=K): the sums `(w, w u, w y)` over the samples first wrapped at
+    /// `+k` (forward) and at `-k` (back), then made cumulative.
+    forward: Vec<[f64; 3]>,
+    back: Vec<[f64; 3]>,
+    /// The shift in ticks, `h f0`, and the nominal rate.
+    step_ticks: f64,
+    nominal_hz: f64,
+    /// Per sample `w y` (fixed).
+    wy: Vec<f64>,
+}
+
+impl PhaseScan {
+    fn new(offsets: &Offsets, target: &[f64]) -> Self {
+        let (mut s1, mut sy, mut syy) = (0.0, 0.0, 0.0);
+        let wy: Vec<f64> = offsets.weight.iter().zip(target).map(|(w, y)| w * y).collect();
+        for ((&w, &y), &wy) in offsets.weight.iter().zip(target).zip(&wy) {
+            s1 += w;
+            sy += wy;
+            syy += wy * y;
+        }
+        Self {
+            s1,
+            sy,
+            syy,
+            su: 0.0,
+            suu: 0.0,
+            suy: 0.0,
+            forward: Vec::new(),
+            back: Vec::new(),
+            step_ticks: 0.0,
+            nominal_hz: 1.0,
+            wy,
+        }
+    }
+
+    /// Bins the samples at `clock` for the shifts `k step_s`, `|k| <= max_shift`.
+    fn bin(&mut self, offsets: &Offsets, clock: &SampleClock, step_s: f64, max_shift: usize) {
+        self.nominal_hz = clock.nominal_hz;
+        self.step_ticks = step_s * clock.nominal_hz;
+        let h = self.step_ticks;
+        self.forward.clear();
+        self.forward.resize(max_shift + 1, [0.0; 3]);
+        self.back.clear();
+        self.back.resize(max_shift + 1, [0.0; 3]);
+        let (mut su, mut suu, mut suy) = (0.0, 0.0, 0.0);
+        for (i, &t) in offsets.t_s.iter().enumerate() {
+            let n = clock.ticks(t);
+            let u = n - floor(n);
+            let (w, wy) = (offsets.weight[i], self.wy[i]);
+            let sums = [w, w * u, wy];
+            su += sums[1];
+            suu += sums[1] * u;
+            suy += wy * u;
+            if h > 0.0 {
+                // first k >= 1 with u + k h >= 1, and first k >= 1 with u - k h < 0
+                let mut kf = ((1.0 - u) / h).ceil().max(1.0) as usize;
+                while kf > 1 && u + (kf - 1) as f64 * h >= 1.0 {
+                    kf -= 1;
+                }
+                while kf <= max_shift && u + kf as f64 * h < 1.0 {
+                    kf += 1;
+                }
+                if kf <= max_shift {
+                    add(&mut self.forward[kf], &sums);
+                }
+                let mut kb = ((u / h).floor() + 1.0).max(1.0) as usize;
+                while kb > 1 && u - (kb - 1) as f64 * h < 0.0 {
+                    kb -= 1;
+                }
+                while kb <= max_shift && u - kb as f64 * h >= 0.0 {
+                    kb += 1;
+                }
+                if kb <= max_shift {
+                    add(&mut self.back[kb], &sums);
+                }
+            }
+        }
+        for k in 1..=max_shift {
+            let (f, b) = (self.forward[k - 1], self.back[k - 1]);
+            add(&mut self.forward[k], &f);
+            add(&mut self.back[k], &b);
+        }
+        (self.su, self.suu, self.suy) = (su, suu, suy);
+
+        fn add(a: &mut [f64; 3], b: &[f64; 3]) {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += y;
+            }
+        }
+    }
+
+    /// [`linear_part`]'s cost at the binned clock's phase moved by `k` steps.
+    fn cost(&self, k: i32) -> f64 {
+        let s = k as f64 * self.step_ticks;
+        let (wrapped, c) = if k >= 0 { (self.forward[k as usize], 1.0) } else { (self.back[(-k) as usize], -1.0) };
+        let [ww, wu, wy] = wrapped;
+        // sums of w b, w b^2, w b y with b = u - c over the wrapped samples, u elsewhere
+        let b1 = self.su - c * ww;
+        let b2 = self.suu - 2.0 * c * wu + ww;
+        let by = self.suy - c * wy;
+        let f0 = self.nominal_hz;
+        let sa = (b1 + s * self.s1) / f0;
+        let saa = (b2 + 2.0 * s * b1 + s * s * self.s1) / (f0 * f0);
+        let say = (by + s * self.sy) / f0;
+        let (s1, sy, syy) = (self.s1, self.sy, self.syy);
+        let det = saa * s1 - sa * sa;
+        if det.abs() < 1e-300 {
+            return syy - sy * sy / s1.max(1e-300);
+        }
+        let amp = (say * s1 - sa * sy) / det;
+        if amp < 0.0 {
+            return (syy - sy * sy / s1.max(1e-300)).max(0.0);
+        }
+        let c0 = (saa * sy - sa * say) / det;
+        (syy - amp * say - c0 * sy).max(0.0)
+    }
 }
 
 /// Gauss-Newton on `(rate offset, drift, phase, amplitude, constant)` from `start`, with the
@@ -535,6 +672,38 @@ mod tests {
         let (amp, constant, cost) = linear_part(&o, &offset_s, &truth);
         assert!((amp - 1.0).abs() < 1e-9 && (constant - 0.1e-3).abs() < 1e-12, "{amp} {constant}");
         assert!(cost < 1e-9 * spread, "{cost}");
+    }
+
+    /// The phase scan's cost at every shift is [`linear_part`]'s at the shifted clock, computed
+    /// sample by sample (fast and slow clocks, a drift, uneven weights, shifts past a wrap both
+    /// ways, and the mirror's amplitude held at 0).
+    #[test]
+    fn the_phase_scan_scores_every_shift_as_the_direct_fit_does() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let noise = Normal::new(0.0, 0.1e-3).expect("normal");
+        let truth =
+            SampleClock { nominal_hz: 1000.0, rate_offset: 812e-6, drift_per_s: 2e-8, phase_s: 0.4e-3, t_ref_s: 40.0 };
+        let sample: Vec<i64> = (0..5000).collect();
+        let t_s: Vec<f64> = sample.iter().map(|&k| k as f64 * 0.016).collect();
+        let offset_s: Vec<f64> = t_s.iter().map(|&t| 0.8 * truth.age_s(t) + 0.2e-3 + noise.sample(&mut rng)).collect();
+        let weight: Vec<f64> = (0..5000).map(|k| 0.5 + (k % 5) as f64).collect();
+        let o = Offsets { sample, t_s, offset_s: offset_s.clone(), weight };
+        let mut scan = PhaseScan::new(&o, &offset_s);
+        let mut checked = 0;
+        for base in [truth, truth.moved([-30e-6, 0.0, 0.37e-3]), SampleClock { rate_offset: -812e-6, ..truth }] {
+            for (step_s, k_max) in [(0.2e-3 / 16.0, 16usize), (0.05e-3 / 16.0, 16), (0.33e-3, 3)] {
+                scan.bin(&o, &base, step_s, k_max);
+                for k in -(k_max as i32)..=k_max as i32 {
+                    let direct = linear_part(&o, &offset_s, &base.moved([0.0, 0.0, step_s * k as f64])).2;
+                    let fast = scan.cost(k);
+                    assert!((fast - direct).abs() <= 1e-9 * direct.max(1e-30), "shift {k}: {fast:e} vs {direct:e}");
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(checked, 3 * (33 + 33 + 7));
     }
 
     /// The matched filter and the refinement recover a sawtooth from noisy offsets: rate to a

@@ -301,8 +301,15 @@ impl ClockProblem {
         }
         let u = {
             let scale = (0..6).map(|a| h[(a, a)]).fold(0.0, f64::max);
-            let eig = h.symmetric_eigenvalues();
-            if scale > 0.0 && eig.min() > 1e-10 * scale { h.cholesky().map(|c| c.solve(&b)) } else { None }
+            // Solved where the smallest eigenvalue exceeds 1e-10 of the largest diagonal element.
+            // `1 / |H^-1|_F` bounds the smallest eigenvalue from below, so where it clears twice
+            // the threshold the eigenvalues need not be computed (the same decision, cheaper).
+            let chol = if scale > 0.0 { h.cholesky() } else { None };
+            chol.filter(|c| {
+                let bound = 1.0 / c.inverse().norm();
+                bound > 2e-10 * scale || h.symmetric_eigenvalues().min() > 1e-10 * scale
+            })
+            .map(|c| c.solve(&b))
         }
         .unwrap_or_else(Vector6::zeros);
         let mut cost = 0.0;
