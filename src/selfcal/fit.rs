@@ -416,7 +416,7 @@ fn gauss_newton(
     let mut lambda = 1e-6;
     let mut cost = total_cost(array, stat, dynamic, settings, w, state);
     for it in 0..max_iterations {
-        let normal = normal_equations(array, stat, dynamic, settings, w, state, active);
+        let normal = normal_equations_with(array, stat, dynamic, settings, w, state, active, true);
         let mut accepted = false;
         for _ in 0..12 {
             let Some(step) = kkt_step(&normal, constraints, values, active, state, lambda, array.len()) else {
@@ -520,6 +520,23 @@ pub(super) fn normal_equations(
     state: &State,
     active: &[bool],
 ) -> Normal {
+    normal_equations_with(array, stat, dynamic, settings, w, state, active, false)
+}
+
+/// [`normal_equations`] with `rate_curvature`: the samples' motions eliminated with the residual's
+/// curvature in their rate blocks, as `motion::solve` solves them (the Gauss-Newton steps' model
+/// of the cost). Without it the information is the Fisher information (the covariance's).
+#[allow(clippy::too_many_arguments)]
+fn normal_equations_with(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: Option<&DynamicData>,
+    settings: &FitSettings,
+    w: &Weights,
+    state: &State,
+    active: &[bool],
+    rate_curvature: bool,
+) -> Normal {
     let n = array.len();
     let na = PER_ACCEL * n;
     let dim = na + 2 * state.up.len();
@@ -562,6 +579,7 @@ pub(super) fn normal_equations(
                         &state.motion[i],
                         &w.dynamic_w,
                         fixed,
+                        rate_curvature,
                         Some(&mut ha),
                         &mut ga,
                         &mut scratch,
@@ -604,6 +622,7 @@ pub(super) fn accumulate_sample(
     m: &SampleMotion,
     weights: &[f64],
     fixed: bool,
+    rate_curvature: bool,
     mut h: Option<&mut DMatrix<f64>>,
     g: &mut DVector<f64>,
     scratch: &mut SampleScratch,
@@ -654,6 +673,14 @@ pub(super) fn accumulate_sample(
         for k in 6..9 {
             hll[(k, k)] = 1.0;
         }
+    } else if rate_curvature {
+        // The rate's block with the residual's curvature, as the sample's motion is solved
+        // (`motion::solve`): at a low rate the Gauss-Newton block alone lets the rate absorb a
+        // share of a parameter step that no re-solved motion can (module docs of `motion`).
+        let row: Vec<f64> = d.outputs.row(i).iter().copied().collect();
+        let data = SampleData { outputs: &row, used: &d.used[i * n..(i + 1) * n], weights };
+        let mut block = hll.fixed_view_mut::<3, 3>(6, 6);
+        block += motion::rate_curvature(sens, &data, m);
     }
     // H -= M^T Hll^+ M; g -= M^T Hll^+ g_l (a pseudo-inverse where the sample does not fix its
     // whole motion: at zero rate the centripetal terms, and with them the rate, vanish).

@@ -28,7 +28,7 @@
 //!   known only through `|w|^2 r`. Fixed by *the array has its nominal size*:
 //!   `sum_j (r_j - c) . dr_j = 0` with `c` the nominal centroid.
 
-use nalgebra::{DMatrix, Vector3};
+use nalgebra::{DMatrix, Matrix3, Vector3};
 
 use crate::array::Array;
 use crate::sensor::misalignment::{tilt_axis_with_derivatives, tilt_basis};
@@ -176,6 +176,14 @@ impl Sensor {
         let dalpha = r.cross(a) * self.k;
         let domega = (r * a.dot(w) + a * w.dot(r) - w * (2.0 * a.dot(r))) * self.k;
         [df.x, df.y, df.z, dalpha.x, dalpha.y, dalpha.z, domega.x, domega.y, domega.z]
+    }
+
+    /// Second derivative of a dynamic output by the rate, `k (a r^T + r a^T - 2 (a . r) I)`: the
+    /// centripetal term is quadratic in the rate, so this is the same at every motion.
+    pub fn d2_rate(&self) -> Matrix3<f64> {
+        let a = &self.axis;
+        let r = &self.position_m;
+        (a * r.transpose() + r * a.transpose() - Matrix3::identity() * (2.0 * a.dot(r))) * self.k
     }
 }
 

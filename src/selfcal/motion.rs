@@ -35,15 +35,25 @@ pub fn cost(sensors: &[Sensor], data: &SampleData, m: &SampleMotion) -> f64 {
     c
 }
 
-/// Gauss-Newton from `start`; with `omega_fixed` only `f` and `alpha` are solved (then the
-/// model is linear and one step is exact). Returns the motion and its cost; [`information`] gives
-/// its local normal matrix.
+/// Newton from `start`, damped (Levenberg-Marquardt) where the full step does not lower the cost;
+/// with `omega_fixed` only `f` and `alpha` are solved (then the model is linear and one step is
+/// exact). Returns the motion and its cost; [`information`] gives its local normal matrix.
+///
+/// The rate's block of the normal matrix carries the residual's curvature ([`rate_curvature`]):
+/// the outputs are quadratic in the rate, and at a low rate the Gauss-Newton block (which goes as
+/// the rate squared) is smaller than that term, so Gauss-Newton steps there are wrong in size and
+/// even in sign. Where the block has a direction of negative curvature (a saddle: a rate of
+/// exactly zero, where the first guess found no centripetal term, is one) a search along it
+/// leaves the saddle. The solve stops when the undamped step would lower the cost by less than
+/// `1e-8` (a chi^2: about 1e-4 of a sigma).
 pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_fixed: bool) -> (SampleMotion, f64) {
     let dim = if omega_fixed { 6 } else { 9 };
     let mut m = start;
     let mut c = cost(sensors, data, &m);
     let mut h = SMatrix::<f64, 9, 9>::zeros();
-    for _ in 0..30 {
+    let mut mu = 0.0_f64;
+    let mut escaped = false;
+    for _ in 0..50 {
         h.fill(0.0);
         let mut g = SVector::<f64, 9>::zeros();
         for (j, s) in sensors.iter().enumerate() {
@@ -63,34 +73,98 @@ pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_f
                 h[(i, i)] = 1.0;
                 g[i] = 0.0;
             }
-        }
-        let Some(chol) = h.cholesky() else { break };
-        let step = chol.solve(&g);
-        let mut lambda = 1.0;
-        let mut improved = false;
-        for _ in 0..8 {
-            let trial = SampleMotion {
-                f_m_s2: m.f_m_s2 + step.fixed_rows::<3>(0) * lambda,
-                alpha_rad_s2: m.alpha_rad_s2 + step.fixed_rows::<3>(3) * lambda,
-                omega_rad_s: m.omega_rad_s + step.fixed_rows::<3>(6) * lambda,
-            };
-            let ct = cost(sensors, data, &trial);
-            if ct <= c {
-                // The cost is a chi^2 (weights are inverse variances): a decrease below 1e-8
-                // moves the motion by about 1e-4 of its sigma.
-                let small = c - ct <= 1e-8_f64.max(1e-12 * c);
-                m = trial;
-                c = ct;
-                improved = !small;
-                break;
+        } else {
+            let curvature = rate_curvature(sensors, data, &m);
+            let mut block = h.fixed_view_mut::<3, 3>(6, 6);
+            block += curvature;
+            if !escaped && let Some(better) = leave_saddle(sensors, data, &m, c, &block.into_owned()) {
+                (m, c) = better;
+                escaped = true;
+                continue;
             }
-            lambda *= 0.5;
         }
-        if !improved || dim == 6 {
+        // A floor on the diagonal keeps the linear unknowns' step defined where the rate's rows
+        // vanish.
+        let floor = 1e-12 * (0..9).map(|i| h[(i, i)].abs()).fold(0.0, f64::max);
+        // Converged when the undamped step's predicted decrease `g^T H^-1 g` is negligible.
+        if let Some(chol) = h.cholesky()
+            && g.dot(&chol.solve(&g)) <= 1e-8_f64.max(1e-12 * c)
+        {
+            break;
+        }
+        let mut accepted = false;
+        for _ in 0..16 {
+            let mut damped = h;
+            for i in 0..9 {
+                damped[(i, i)] += floor + mu * h[(i, i)].abs().max(floor);
+            }
+            if let Some(chol) = damped.cholesky() {
+                let step = chol.solve(&g);
+                let trial = SampleMotion {
+                    f_m_s2: m.f_m_s2 + step.fixed_rows::<3>(0),
+                    alpha_rad_s2: m.alpha_rad_s2 + step.fixed_rows::<3>(3),
+                    omega_rad_s: m.omega_rad_s + step.fixed_rows::<3>(6),
+                };
+                let ct = cost(sensors, data, &trial);
+                if ct <= c {
+                    m = trial;
+                    c = ct;
+                    accepted = true;
+                    mu = if mu > 1e-6 { mu * 0.1 } else { 0.0 };
+                    break;
+                }
+            }
+            mu = if mu > 0.0 { mu * 10.0 } else { 1e-4 };
+        }
+        if !accepted || dim == 6 {
             break;
         }
     }
     (m, c)
+}
+
+/// The residual's curvature in the rate, `-sum_j w_j r_j d2_rate_j`: what the Newton matrix of a
+/// sample's motion adds to the Gauss-Newton one in the rate's block (the outputs are linear in the
+/// specific force and angular acceleration, so the other blocks have none).
+pub fn rate_curvature(sensors: &[Sensor], data: &SampleData, m: &SampleMotion) -> Matrix3<f64> {
+    let mut out = Matrix3::zeros();
+    for (j, s) in sensors.iter().enumerate() {
+        if data.used[j] {
+            let r = data.outputs[j] - s.output(&m.specific_force_m_s2(&s.position_m));
+            out -= s.d2_rate() * (data.weights[j] * r);
+        }
+    }
+    out
+}
+
+/// A motion off a saddle of the sample's misfit: where the rate's Newton block has a negative
+/// eigenvalue, the rate moved along its eigenvector by the step (of a few tried) that lowers the
+/// cost most, the linear unknowns re-solved with it. `None` where the block has no negative
+/// curvature or no tried step lowers the cost.
+fn leave_saddle(
+    sensors: &[Sensor],
+    data: &SampleData,
+    m: &SampleMotion,
+    c: f64,
+    block: &Matrix3<f64>,
+) -> Option<(SampleMotion, f64)> {
+    let eig = block.symmetric_eigen();
+    let (k, lam) = eig.eigenvalues.iter().copied().enumerate().min_by(|a, b| a.1.total_cmp(&b.1))?;
+    if lam.is_nan() || lam >= 0.0 {
+        return None;
+    }
+    let v = eig.eigenvectors.column(k).into_owned();
+    let mut best: Option<(SampleMotion, f64)> = None;
+    for t in [0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0] {
+        for sign in [1.0, -1.0] {
+            let start = SampleMotion { omega_rad_s: m.omega_rad_s + v * (sign * t), ..*m };
+            let (trial, ct) = solve(sensors, data, start, true);
+            if ct < best.as_ref().map_or(c, |b| b.1) {
+                best = Some((trial, ct));
+            }
+        }
+    }
+    best
 }
 
 /// The local normal matrix of a sample's motion (its inverse is the motion's covariance given
@@ -207,4 +281,79 @@ pub fn information_inverse(hll: &SMatrix<f64, 9, 9>) -> SMatrix<f64, 9, 9> {
         }
     }
     dm * inv * dm
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Eight packages of three axes at the corners of a 20 x 20 x 2 mm board (the MIMU4444's
+    /// shape), unit scale factors, no biases.
+    fn board() -> Vec<Sensor> {
+        let mut out = Vec::new();
+        for &(x, y, z) in &[(1.0, 1.0, 1.0), (-1.0, 1.0, -1.0), (-1.0, -1.0, 1.0), (1.0, -1.0, -1.0)] {
+            for side in [1.0, -1.0] {
+                let position_m = Vector3::new(0.01 * x * side, 0.01 * y, 0.001 * z * side);
+                for axis in [Vector3::x(), Vector3::y(), Vector3::z()] {
+                    out.push(Sensor { k: 1.0, b_m_s2: 0.0, axis, daxis: [Vector3::zeros(); 2], position_m });
+                }
+            }
+        }
+        out
+    }
+
+    /// The rate's second derivative of an output against central differences of its first
+    /// derivative (`d_motion`'s rate part), at a few rates.
+    #[test]
+    fn the_rate_curvature_matches_central_differences() {
+        let sensors = board();
+        for w in [Vector3::new(3.0, -2.0, 5.0), Vector3::new(0.0, 0.0, 0.0), Vector3::new(-20.0, 7.0, 1.0)] {
+            let m = SampleMotion {
+                f_m_s2: Vector3::new(1.0, 2.0, 9.0),
+                alpha_rad_s2: Vector3::new(50.0, -30.0, 10.0),
+                omega_rad_s: w,
+            };
+            for s in &sensors {
+                let exact = s.d2_rate();
+                for e in 0..3 {
+                    let h = 1e-4;
+                    let mut up = m;
+                    up.omega_rad_s[e] += h;
+                    let mut down = m;
+                    down.omega_rad_s[e] -= h;
+                    let (du, dd) = (s.d_motion(&up), s.d_motion(&down));
+                    for c in 0..3 {
+                        let fd = (du[6 + c] - dd[6 + c]) / (2.0 * h);
+                        assert!((fd - exact[(c, e)]).abs() < 1e-9, "{fd} vs {}", exact[(c, e)]);
+                    }
+                }
+            }
+        }
+    }
+
+    /// A sample started at exactly zero rate (where the linear first guess finds no centripetal
+    /// term) is at a saddle of its misfit: the rate's gradient vanishes there, so Gauss-Newton
+    /// alone never leaves it. The solve finds the true motion (the rate up to its sign, which the
+    /// outputs do not carry) from noise-free outputs, to the solve's stopping rule (a chi^2
+    /// decrease below 1e-8: here about 1e-5 of the rate's sigma).
+    #[test]
+    fn a_sample_started_at_zero_rate_leaves_the_saddle() {
+        let sensors = board();
+        let truth = SampleMotion {
+            f_m_s2: Vector3::new(2.0, -1.0, 9.5),
+            alpha_rad_s2: Vector3::new(120.0, -80.0, 40.0),
+            omega_rad_s: Vector3::new(4.0, -3.0, 6.0),
+        };
+        let outputs: Vec<f64> = sensors.iter().map(|s| s.output(&truth.specific_force_m_s2(&s.position_m))).collect();
+        let used = vec![true; sensors.len()];
+        let weights = vec![1.0 / 0.04_f64.powi(2); sensors.len()];
+        let data = SampleData { outputs: &outputs, used: &used, weights: &weights };
+        let start = SampleMotion { omega_rad_s: Vector3::zeros(), ..truth };
+        let (m, c) = solve(&sensors, &data, start, false);
+        let w_err = (m.omega_rad_s - truth.omega_rad_s).norm().min((m.omega_rad_s + truth.omega_rad_s).norm());
+        assert!(w_err < 1e-4, "rate {:?}, cost {c}", m.omega_rad_s);
+        assert!((m.alpha_rad_s2 - truth.alpha_rad_s2).norm() < 1e-3, "{:?}", m.alpha_rad_s2);
+        assert!((m.f_m_s2 - truth.f_m_s2).norm() < 1e-5, "{:?}", m.f_m_s2);
+        assert!(c < 1e-8, "{c}");
+    }
 }

@@ -78,6 +78,7 @@ pub fn robust_covariance(
                     &fit.motion[i],
                     &weights.dynamic_w,
                     fixed,
+                    false,
                     None,
                     &mut g,
                     &mut scratch,
