@@ -594,6 +594,7 @@ fn normal_equations_with(
             let mut gv = g.rows_mut(0, na);
             gv += &ga;
         }
+        mirror_upper_blocks(&mut h, n);
     }
     for i in 0..dim {
         if !active[i] {
@@ -676,11 +677,13 @@ pub(super) fn accumulate_sample(
     } else if rate_curvature {
         // The rate's block with the residual's curvature, as the sample's motion is solved
         // (`motion::solve`): at a low rate the Gauss-Newton block alone lets the rate absorb a
-        // share of a parameter step that no re-solved motion can (module docs of `motion`).
+        // share of a parameter step that no re-solved motion can (`motion::solve`'s docs).
         let row: Vec<f64> = d.outputs.row(i).iter().copied().collect();
         let data = SampleData { outputs: &row, used: &d.used[i * n..(i + 1) * n], weights };
-        let mut block = hll.fixed_view_mut::<3, 3>(6, 6);
-        block += motion::rate_curvature(sens, &data, m);
+        let block = hll.fixed_view::<3, 3>(6, 6).into_owned();
+        if let (Some(newton), _) = motion::newton_rate_block(&block, &motion::rate_curvature(sens, &data, m)) {
+            hll.fixed_view_mut::<3, 3>(6, 6).copy_from(&newton);
+        }
     }
     // H -= M^T Hll^+ M; g -= M^T Hll^+ g_l (a pseudo-inverse where the sample does not fix its
     // whole motion: at zero rate the centripetal terms, and with them the rate, vanish).
@@ -696,7 +699,9 @@ pub(super) fn accumulate_sample(
         }
         let Some(h) = h.as_deref_mut() else { continue };
         let ya = inv * scratch.wdl[a];
-        for b in 0..m_used {
+        // The blocks on and below the diagonal (`b <= a`, the used outputs in increasing order);
+        // the caller mirrors the others ([`mirror_upper_blocks`]).
+        for b in 0..=a {
             let pab = ya.dot(&scratch.wdl[b]);
             let base_b = PER_ACCEL * scratch.index[b];
             let dgb = scratch.dg[b];
@@ -707,6 +712,21 @@ pub(super) fn accumulate_sample(
                 let column = &mut column.as_mut_slice()[base_a..base_a + PER_ACCEL];
                 for (v, fp) in column.iter_mut().zip(&f) {
                     *v -= fp * dq;
+                }
+            }
+        }
+    }
+}
+
+/// The accelerometers' blocks above the diagonal of the normal matrix set to the mirror of those
+/// below it ([`accumulate_sample`] adds the dynamic samples' Schur updates to the blocks on and
+/// below the diagonal only: the update is symmetric, and half the pairs cost half the time).
+fn mirror_upper_blocks(h: &mut DMatrix<f64>, accelerometers: usize) {
+    for a in 0..accelerometers {
+        for b in a + 1..accelerometers {
+            for p in 0..PER_ACCEL {
+                for q in 0..PER_ACCEL {
+                    h[(PER_ACCEL * a + p, PER_ACCEL * b + q)] = h[(PER_ACCEL * b + q, PER_ACCEL * a + p)];
                 }
             }
         }

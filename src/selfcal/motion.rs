@@ -39,13 +39,15 @@ pub fn cost(sensors: &[Sensor], data: &SampleData, m: &SampleMotion) -> f64 {
 /// with `omega_fixed` only `f` and `alpha` are solved (then the model is linear and one step is
 /// exact). Returns the motion and its cost; [`information`] gives its local normal matrix.
 ///
-/// The rate's block of the normal matrix carries the residual's curvature ([`rate_curvature`]):
-/// the outputs are quadratic in the rate, and at a low rate the Gauss-Newton block (which goes as
-/// the rate squared) is smaller than that term, so Gauss-Newton steps there are wrong in size and
-/// even in sign. Where the block has a direction of negative curvature (a saddle: a rate of
-/// exactly zero, where the first guess found no centripetal term, is one) a search along it
-/// leaves the saddle. The solve stops when the undamped step would lower the cost by less than
-/// `1e-8` (a chi^2: about 1e-4 of a sigma).
+/// The rate's block of the normal matrix carries the residual's curvature ([`rate_curvature`])
+/// wherever the sum stays positive definite (the Newton block, [`newton_rate_block`]): the outputs
+/// are quadratic in the rate, and at a low rate the Gauss-Newton block (which goes as the rate
+/// squared) is smaller than that term, so Gauss-Newton steps there are wrong in size. Where the
+/// sum has a direction of negative curvature (a saddle: a rate of exactly zero, where the first
+/// guess found no centripetal term, is one) a search along it leaves the saddle when that clearly
+/// lowers the misfit ([`leave_saddle`]), and otherwise the Gauss-Newton block is kept (a flat
+/// array, whose rate is not resolved, stays as it was). The solve stops when the undamped step
+/// would lower the cost by less than `1e-8` (a chi^2: about 1e-4 of a sigma).
 pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_fixed: bool) -> (SampleMotion, f64) {
     let dim = if omega_fixed { 6 } else { 9 };
     let mut m = start;
@@ -74,10 +76,11 @@ pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_f
                 g[i] = 0.0;
             }
         } else {
-            let curvature = rate_curvature(sensors, data, &m);
-            let mut block = h.fixed_view_mut::<3, 3>(6, 6);
-            block += curvature;
-            if !escaped && let Some(better) = leave_saddle(sensors, data, &m, c, &block.into_owned()) {
+            let block = h.fixed_view::<3, 3>(6, 6).into_owned();
+            let (newton, full) = newton_rate_block(&block, &rate_curvature(sensors, data, &m));
+            if let Some(n) = newton {
+                h.fixed_view_mut::<3, 3>(6, 6).copy_from(&n);
+            } else if !escaped && let Some(better) = leave_saddle(sensors, data, &m, c, &full) {
                 (m, c) = better;
                 escaped = true;
                 continue;
@@ -137,6 +140,20 @@ pub fn rate_curvature(sensors: &[Sensor], data: &SampleData, m: &SampleMotion) -
     out
 }
 
+/// The Gauss-Newton rate block plus the residual's curvature: `(Some(sum), sum)` where the sum is
+/// positive definite (what the solve and the joint fit's elimination use), `(None, sum)` where it
+/// is not (both keep the Gauss-Newton block).
+pub fn newton_rate_block(
+    gauss_newton: &Matrix3<f64>,
+    curvature: &Matrix3<f64>,
+) -> (Option<Matrix3<f64>>, Matrix3<f64>) {
+    let sum = gauss_newton + curvature;
+    (sum.cholesky().map(|_| sum), sum)
+}
+
+/// The fall of a sample's chi^2 that a move off a saddle must give to be kept ([`leave_saddle`]).
+const SADDLE_GAIN: f64 = 25.0;
+
 /// A motion off a saddle of the sample's misfit: where the rate's Newton block has a negative
 /// eigenvalue, the rate moved along its eigenvector by the step (of a few tried) that lowers the
 /// cost most, the linear unknowns re-solved with it. `None` where the block has no negative
@@ -159,7 +176,10 @@ fn leave_saddle(
         for sign in [1.0, -1.0] {
             let start = SampleMotion { omega_rad_s: m.omega_rad_s + v * (sign * t), ..*m };
             let (trial, ct) = solve(sensors, data, start, true);
-            if ct < best.as_ref().map_or(c, |b| b.1) {
+            // Kept only for a clear gain (a chi^2 fall above 25, five sigmas): where the rate is
+            // not resolved at all (a flat array) a rate fitted to the noise alone lowers the
+            // chi^2 by about its 3 unknowns, and must not be taken for one.
+            if ct < best.as_ref().map_or(c - SADDLE_GAIN, |b| b.1) {
                 best = Some((trial, ct));
             }
         }
