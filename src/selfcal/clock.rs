@@ -249,6 +249,12 @@ fn linear_part(offsets: &Offsets, target: &[f64], clock: &SampleClock) -> (f64, 
         sy += w * y;
         syy += w * y * y;
     }
+    fit_from_moments([saa, sa, s1, say, sy, syy])
+}
+
+/// [`linear_part`]'s least squares from its weighted moments `[sum w a^2, sum w a, sum w,
+/// sum w a y, sum w y, sum w y^2]`: amplitude (held at or above 0), constant and cost.
+fn fit_from_moments([saa, sa, s1, say, sy, syy]: [f64; 6]) -> (f64, f64, f64) {
     let det = saa * s1 - sa * sa;
     if det.abs() < 1e-300 {
         return (0.0, sy / s1.max(1e-300), syy - sy * sy / s1.max(1e-300));
@@ -425,17 +431,7 @@ impl PhaseScan {
         let sa = (b1 + s * self.s1) / f0;
         let saa = (b2 + 2.0 * s * b1 + s * s * self.s1) / (f0 * f0);
         let say = (by + s * self.sy) / f0;
-        let (s1, sy, syy) = (self.s1, self.sy, self.syy);
-        let det = saa * s1 - sa * sa;
-        if det.abs() < 1e-300 {
-            return syy - sy * sy / s1.max(1e-300);
-        }
-        let amp = (say * s1 - sa * sy) / det;
-        if amp < 0.0 {
-            return (syy - sy * sy / s1.max(1e-300)).max(0.0);
-        }
-        let c0 = (saa * sy - sa * say) / det;
-        (syy - amp * say - c0 * sy).max(0.0)
+        fit_from_moments([saa, sa, self.s1, say, self.sy, self.syy]).2
     }
 }
 

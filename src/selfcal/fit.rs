@@ -25,7 +25,7 @@
 
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord, clippy::useless_vec)]
 
-use nalgebra::{DMatrix, DVector, SMatrix, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3};
 use rayon::prelude::*;
 
 use super::data::{DynamicData, StaticData};
@@ -634,6 +634,8 @@ pub(super) fn accumulate_sample(
     scratch.wdl.clear();
     scratch.dg.clear();
     scratch.index.clear();
+    let with_curvature = rate_curvature && !fixed;
+    let mut curvature = Matrix3::zeros();
     for (j, s) in sens.iter().enumerate() {
         if !d.used[i * n + j] {
             continue;
@@ -641,6 +643,9 @@ pub(super) fn accumulate_sample(
         let q = m.specific_force_m_s2(&s.position_m);
         let r = d.outputs[(i, j)] - s.output(&q);
         let wt = weights[j];
+        if with_curvature {
+            curvature += motion::rate_curvature(s, wt * r);
+        }
         let mut dl = SVector9::from(s.d_motion(m));
         if fixed {
             for k in 6..9 {
@@ -674,14 +679,12 @@ pub(super) fn accumulate_sample(
         for k in 6..9 {
             hll[(k, k)] = 1.0;
         }
-    } else if rate_curvature {
+    } else if with_curvature {
         // The rate's block with the residual's curvature, as the sample's motion is solved
         // (`motion::solve`): at a low rate the Gauss-Newton block alone lets the rate absorb a
         // share of a parameter step that no re-solved motion can (`motion::solve`'s docs).
-        let row: Vec<f64> = d.outputs.row(i).iter().copied().collect();
-        let data = SampleData { outputs: &row, used: &d.used[i * n..(i + 1) * n], weights };
         let block = hll.fixed_view::<3, 3>(6, 6).into_owned();
-        if let (Some(newton), _) = motion::newton_rate_block(&block, &motion::rate_curvature(sens, &data, m)) {
+        if let (Some(newton), _) = motion::newton_rate_block(&block, &curvature) {
             hll.fixed_view_mut::<3, 3>(6, 6).copy_from(&newton);
         }
     }

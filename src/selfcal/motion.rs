@@ -58,6 +58,7 @@ pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_f
     for _ in 0..50 {
         h.fill(0.0);
         let mut g = SVector::<f64, 9>::zeros();
+        let mut curvature = Matrix3::zeros();
         for (j, s) in sensors.iter().enumerate() {
             if !data.used[j] {
                 continue;
@@ -67,6 +68,9 @@ pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_f
             let w = data.weights[j];
             h.ger(w, &d, &d, 1.0);
             g.axpy(w * r, &d, 1.0);
+            if !omega_fixed {
+                curvature += rate_curvature(s, w * r);
+            }
         }
         if omega_fixed {
             for i in 6..9 {
@@ -77,7 +81,7 @@ pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_f
             }
         } else {
             let block = h.fixed_view::<3, 3>(6, 6).into_owned();
-            let (newton, full) = newton_rate_block(&block, &rate_curvature(sensors, data, &m));
+            let (newton, full) = newton_rate_block(&block, &curvature);
             if let Some(n) = newton {
                 h.fixed_view_mut::<3, 3>(6, 6).copy_from(&n);
             } else if !escaped && let Some(better) = leave_saddle(sensors, data, &m, c, &full) {
@@ -126,18 +130,13 @@ pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_f
     (m, c)
 }
 
-/// The residual's curvature in the rate, `-sum_j w_j r_j d2_rate_j`: what the Newton matrix of a
-/// sample's motion adds to the Gauss-Newton one in the rate's block (the outputs are linear in the
-/// specific force and angular acceleration, so the other blocks have none).
-pub fn rate_curvature(sensors: &[Sensor], data: &SampleData, m: &SampleMotion) -> Matrix3<f64> {
-    let mut out = Matrix3::zeros();
-    for (j, s) in sensors.iter().enumerate() {
-        if data.used[j] {
-            let r = data.outputs[j] - s.output(&m.specific_force_m_s2(&s.position_m));
-            out -= s.d2_rate() * (data.weights[j] * r);
-        }
-    }
-    out
+/// One output's share of the residual's curvature in the rate, `-w r d2_rate` (`weighted_residual`
+/// is `w r`). Summed over a sample's used outputs, it is what the Newton matrix of the sample's
+/// motion adds to the Gauss-Newton one in the rate's block (the outputs are linear in the specific
+/// force and angular acceleration, so the other blocks have none). Summed where the residuals are
+/// computed anyway (here and in the joint fit's elimination).
+pub fn rate_curvature(sensor: &Sensor, weighted_residual: f64) -> Matrix3<f64> {
+    -(sensor.d2_rate() * weighted_residual)
 }
 
 /// The Gauss-Newton rate block plus the residual's curvature: `(Some(sum), sum)` where the sum is
