@@ -204,6 +204,32 @@ impl ClockEstimate {
     }
 }
 
+/// The motion's unknowns a sample (`f`, `alpha`, `omega`).
+const MOTION_UNKNOWNS: usize = 9;
+
+/// `|r - A x|^2` at the least-squares `x`, on the columns of `a` the data resolve: the columns
+/// scaled to unit norm (zero columns left out), then the components of `r` along the left
+/// singular vectors whose singular values exceed `1e-5` of the largest removed.
+fn least_squares_misfit(mut a: DMatrix<f64>, r: &DVector<f64>) -> f64 {
+    for mut column in a.column_iter_mut() {
+        let norm = column.norm();
+        if norm > 0.0 {
+            column /= norm;
+        }
+    }
+    let total = r.norm_squared();
+    let svd = a.svd(true, false);
+    let (Some(u), largest) = (svd.u.as_ref(), svd.singular_values.max()) else { return total };
+    let explained: f64 = svd
+        .singular_values
+        .iter()
+        .enumerate()
+        .filter(|&(_, &s)| s > 1e-5 * largest)
+        .map(|(k, _)| u.column(k).dot(r).powi(2))
+        .sum();
+    (total - explained).max(0.0)
+}
+
 /// Each clocked package's rate offset less the clocked packages' mean (1).
 pub fn relative_rates(clocks: &[Option<SampleClock>]) -> Vec<Option<f64>> {
     let rates: Vec<f64> = clocks.iter().flatten().map(|c| c.rate_offset).collect();
@@ -374,6 +400,65 @@ impl ClockProblem {
             1.0 - cost / none
         };
         (at(0.0), shifts_s.iter().map(|&s| at(s)).collect())
+    }
+
+    /// The share of the misfit that the timing model at `clocks` removes when every sample's
+    /// motion is refitted with it: per sample, the least-squares fit of the motion's nine
+    /// unknowns (linearised at `motion`, the motion this problem was built at) without the timing
+    /// model and with it (its six unknowns more), and `1 - with / without` over the samples.
+    ///
+    /// [`shares_removed`](Self::shares_removed) holds the motion where it is. On a recording whose
+    /// motion was tracked without the timing model (a held-out recording scored with another
+    /// recording's clocks), the motion has already absorbed what of the timing signature its own
+    /// unknowns can (the timing term's gains are the motion's own, scaled by the packages'
+    /// ages), so the share at the held motion depends on how far the motion's solve went: a solve
+    /// that stops early leaves the timing model more to take. Refitted with it, the share is what
+    /// the timing model adds to the motion, the same from any motion near the solution (to first
+    /// order). Unknowns a sample does not resolve (singular values of the column-equilibrated
+    /// design below `1e-5` of the largest) are left out. With `rate_given` (`--use-gyro`) the
+    /// motion's rate is not refitted.
+    pub fn share_removed_motion_refitted(
+        &self,
+        sensors: &[Sensor],
+        motion: &[SampleMotion],
+        rate_given: bool,
+        clocks: &[Option<SampleClock>],
+    ) -> f64 {
+        let free = if rate_given { 6 } else { MOTION_UNKNOWNS };
+        use rayon::prelude::*;
+        let parts: Vec<(f64, f64)> = (0..self.samples().min(motion.len()))
+            .into_par_iter()
+            .map_init(
+                || vec![0.0; clocks.len()],
+                |tau, i| {
+                    relative_ages(clocks, self.t_s[i], tau);
+                    let base = i * self.n;
+                    let rows: Vec<usize> = (0..self.n).filter(|&j| self.used[base + j]).collect();
+                    let mut design = DMatrix::zeros(rows.len(), free + TIMING_UNKNOWNS_PER_SAMPLE);
+                    let mut without = DVector::zeros(rows.len());
+                    let mut with = DVector::zeros(rows.len());
+                    for (row, &j) in rows.iter().enumerate() {
+                        let root_w = self.weights[j].sqrt();
+                        let age = tau[self.package_of[j]];
+                        for (k, v) in sensors[j].d_motion(&motion[i]).iter().take(free).enumerate() {
+                            design[(row, k)] = root_w * v;
+                        }
+                        for k in 0..TIMING_UNKNOWNS_PER_SAMPLE {
+                            design[(row, free + k)] = root_w * age * self.gain[j][k];
+                        }
+                        without[row] = root_w * self.residual[base + j];
+                        with[row] = root_w * (self.residual[base + j] + age * self.known_gain[base + j]);
+                    }
+                    (
+                        least_squares_misfit(design.columns(0, free).into_owned(), &without),
+                        least_squares_misfit(design, &with),
+                    )
+                },
+            )
+            .collect();
+        // Summed in sample order (the bits do not follow how the threads split the work).
+        let (without, with) = parts.iter().fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
+        1.0 - with / without.max(1e-300)
     }
 
     /// The timing motion of every sample.

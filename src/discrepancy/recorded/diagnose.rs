@@ -345,7 +345,8 @@ fn finite(v: f64) -> Option<f64> {
 }
 
 /// What the timing model removes of a held-out recording's rotation-phase misfit (at the fitting
-/// recording's parameters, the motion tracked there): with the clocks its own gyroscopes measure
+/// recording's parameters, the motion tracked there and refitted with the timing model,
+/// `ClockProblem::share_removed_motion_refitted`): with the clocks its own gyroscopes measure
 /// (`own`), and with the relative rates predicted from the fitting recording (`predicted`: the
 /// phases and the common part from its gyroscopes, which differ between recordings).
 #[derive(Debug, Clone, Copy)]
@@ -361,7 +362,9 @@ struct HeldOutClockShare {
 /// (the largest difference and its chi-square per degree of freedom with the fitting
 /// recording's sigmas are stated), and its accelerometers score the prediction: the share of
 /// its rotation phase's misfit the timing model removes with the fitting recording's relative
-/// rates, against the share with its own gyroscopes' clocks.
+/// rates, against the share with its own gyroscopes' clocks, each sample's motion refitted with
+/// the timing model (held where it was tracked, the share would depend on where the motion's
+/// solve stopped).
 #[allow(clippy::too_many_arguments)]
 fn sample_clock_test(
     calibration: &Calibration,
@@ -432,10 +435,12 @@ fn sample_clock_test(
             settings.use_gyro,
         )?;
         if let Some(d) = st.dynamic.as_ref().filter(|d| d.samples() == st.motion.len()) {
-            let problem = ClockProblem::new(&sensors(&array.array, &st.params), d, &st.motion, dynamic_w, &package_of);
+            let sens = sensors(&array.array, &st.params);
+            let problem = ClockProblem::new(&sens, d, &st.motion, dynamic_w, &package_of);
+            let rate_given = d.reference_rate_rad_s.is_some();
             *share = Some(HeldOutClockShare {
-                own: problem.shares_removed(&theirs, &[]).0,
-                predicted: problem.shares_removed(&predicted, &[]).0,
+                own: problem.share_removed_motion_refitted(&sens, &st.motion, rate_given, &theirs),
+                predicted: problem.share_removed_motion_refitted(&sens, &st.motion, rate_given, &predicted),
             });
         }
     }
@@ -457,7 +462,7 @@ fn sample_clock_test(
             format!("{:.1}-{:.1}%", 100.0 * lo, 100.0 * hi)
         };
         format!(
-            "; on the held-out recordings' accelerometers, these relative rates (phases from their own gyroscopes) remove {} of the rotation phase's misfit, their own gyroscopes' clocks {}",
+            "; on the held-out recordings' accelerometers, these relative rates (phases from their own gyroscopes) remove {} of the rotation phase's misfit (each sample's motion refitted with them), their own gyroscopes' clocks {}",
             range(&|s| s.predicted),
             range(&|s| s.own)
         )
