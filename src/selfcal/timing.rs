@@ -416,49 +416,71 @@ impl ClockProblem {
     /// the timing model adds to the motion, the same from any motion near the solution (to first
     /// order). Unknowns a sample does not resolve (singular values of the column-equilibrated
     /// design below `1e-5` of the largest) are left out. With `rate_given` (`--use-gyro`) the
-    /// motion's rate is not refitted.
+    /// motion's rate is not refitted. As [`shares_removed`](Self::shares_removed), also at each of
+    /// `shifts_s` (the same clocks read later): six unknowns more a sample remove a share of any
+    /// misfit by chance (for white residuals 6 of the 15 degrees of freedom the motion leaves a
+    /// sample of 24 outputs), and the shifted clocks measure how much.
     pub fn share_removed_motion_refitted(
         &self,
         sensors: &[Sensor],
         motion: &[SampleMotion],
         rate_given: bool,
         clocks: &[Option<SampleClock>],
-    ) -> f64 {
-        let free = if rate_given { 6 } else { MOTION_UNKNOWNS };
+        shifts_s: &[f64],
+    ) -> (f64, Vec<f64>) {
         use rayon::prelude::*;
-        let parts: Vec<(f64, f64)> = (0..self.samples().min(motion.len()))
+        let free = if rate_given { 6 } else { MOTION_UNKNOWNS };
+        let samples = self.samples().min(motion.len());
+        // Each sample's weighted design (the motion's columns, then the timing motion's gains
+        // before the ages scale them) and residual.
+        let sample = |i: usize| -> (Vec<usize>, DMatrix<f64>, DVector<f64>) {
+            let base = i * self.n;
+            let rows: Vec<usize> = (0..self.n).filter(|&j| self.used[base + j]).collect();
+            let mut design = DMatrix::zeros(rows.len(), free + TIMING_UNKNOWNS_PER_SAMPLE);
+            let mut residual = DVector::zeros(rows.len());
+            for (row, &j) in rows.iter().enumerate() {
+                let root_w = self.weights[j].sqrt();
+                for (k, v) in sensors[j].d_motion(&motion[i]).iter().take(free).enumerate() {
+                    design[(row, k)] = root_w * v;
+                }
+                for k in 0..TIMING_UNKNOWNS_PER_SAMPLE {
+                    design[(row, free + k)] = root_w * self.gain[j][k];
+                }
+                residual[row] = root_w * self.residual[base + j];
+            }
+            (rows, design, residual)
+        };
+        let without: Vec<f64> = (0..samples)
             .into_par_iter()
-            .map_init(
-                || vec![0.0; clocks.len()],
-                |tau, i| {
-                    relative_ages(clocks, self.t_s[i], tau);
-                    let base = i * self.n;
-                    let rows: Vec<usize> = (0..self.n).filter(|&j| self.used[base + j]).collect();
-                    let mut design = DMatrix::zeros(rows.len(), free + TIMING_UNKNOWNS_PER_SAMPLE);
-                    let mut without = DVector::zeros(rows.len());
-                    let mut with = DVector::zeros(rows.len());
-                    for (row, &j) in rows.iter().enumerate() {
-                        let root_w = self.weights[j].sqrt();
-                        let age = tau[self.package_of[j]];
-                        for (k, v) in sensors[j].d_motion(&motion[i]).iter().take(free).enumerate() {
-                            design[(row, k)] = root_w * v;
-                        }
-                        for k in 0..TIMING_UNKNOWNS_PER_SAMPLE {
-                            design[(row, free + k)] = root_w * age * self.gain[j][k];
-                        }
-                        without[row] = root_w * self.residual[base + j];
-                        with[row] = root_w * (self.residual[base + j] + age * self.known_gain[base + j]);
-                    }
-                    (
-                        least_squares_misfit(design.columns(0, free).into_owned(), &without),
-                        least_squares_misfit(design, &with),
-                    )
-                },
-            )
+            .map(|i| {
+                let (_, design, residual) = sample(i);
+                least_squares_misfit(design.columns(0, free).into_owned(), &residual)
+            })
             .collect();
         // Summed in sample order (the bits do not follow how the threads split the work).
-        let (without, with) = parts.iter().fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
-        1.0 - with / without.max(1e-300)
+        let without = without.iter().sum::<f64>().max(1e-300);
+        let at = |shift: f64| -> f64 {
+            let with: Vec<f64> = (0..samples)
+                .into_par_iter()
+                .map_init(
+                    || vec![0.0; clocks.len()],
+                    |tau, i| {
+                        relative_ages(clocks, self.t_s[i] + shift, tau);
+                        let (rows, mut design, mut residual) = sample(i);
+                        for (row, &j) in rows.iter().enumerate() {
+                            let age = tau[self.package_of[j]];
+                            for k in 0..TIMING_UNKNOWNS_PER_SAMPLE {
+                                design[(row, free + k)] *= age;
+                            }
+                            residual[row] += self.weights[j].sqrt() * age * self.known_gain[i * self.n + j];
+                        }
+                        least_squares_misfit(design, &residual)
+                    },
+                )
+                .collect();
+            1.0 - with.iter().sum::<f64>() / without
+        };
+        (at(0.0), shifts_s.iter().map(|&s| at(s)).collect())
     }
 
     /// The timing motion of every sample.

@@ -294,7 +294,10 @@ fn the_share_with_the_motion_refitted_does_not_depend_on_where_the_motion_stoppe
         .collect();
     let shares = |motion: &[SampleMotion]| -> (f64, f64) {
         let problem = ClockProblem::new(&sens, &d, motion, &weights, &package_of);
-        (problem.shares_removed(clocks, &[]).0, problem.share_removed_motion_refitted(&sens, motion, false, clocks))
+        (
+            problem.shares_removed(clocks, &[]).0,
+            problem.share_removed_motion_refitted(&sens, motion, false, clocks, &[]).0,
+        )
     };
     let (held_tracked, refitted_tracked) = shares(&tracked);
     let (held_short, refitted_short) = shares(&stopped_short);

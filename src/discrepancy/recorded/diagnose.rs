@@ -50,7 +50,7 @@ use crate::selfcal::clock::SampleClock;
 use crate::selfcal::model::{PER_ACCEL, sensors};
 use crate::selfcal::predict::{HeldOut, HeldOutState, Refit, predict_as_fitted, predict_with_state};
 use crate::selfcal::recording::Recording;
-use crate::selfcal::timing::{ClockProblem, relative_rates};
+use crate::selfcal::timing::{ClockProblem, TIMING_UNKNOWNS_PER_SAMPLE, relative_rates};
 
 /// Diagnoses `fitting` with the `held_out` recordings of the same array (see the module docs).
 pub fn diagnose_recordings(
@@ -207,9 +207,9 @@ pub fn diagnose_recordings(
     )?;
     // With the clocks named, the gaps after them: on the fitting recording the fit's own (with the
     // clocks); on each held-out recording, its gap scaled by the share of its rotation phase's
-    // misfit that the timing model removes with the clocks predicted from this recording (see
-    // `sample_clock_test`; the timing model's own unknowns are not taken from its degrees of
-    // freedom there, so the held-out gap after the clocks is a little optimistic).
+    // misfit that the timing model removes with the clocks predicted from this recording, each
+    // sample's motion refitted with it (see `sample_clock_test`), and by the ratio of the degrees
+    // of freedom without and with the timing model's six unknowns a sample.
     let mut fitting_after_clock = Vec::new();
     let mut library_gap = fitting_gap;
     if findings.iter().any(|f| f.name == "sample_clock") && calibration.clocks.is_some() {
@@ -218,7 +218,8 @@ pub fn diagnose_recordings(
         fitting_after_clock.push(("sample_clock".to_string(), library_gap));
         for (s, share) in scores.iter_mut().zip(&held_out_shares) {
             if let Some(share) = share {
-                s.after = Gap { dynamic: s.after.dynamic.map(|g| g * (1.0 - share.predicted)), ..s.after };
+                s.after =
+                    Gap { dynamic: s.after.dynamic.map(|g| g * (1.0 - share.predicted) * share.dof_ratio), ..s.after };
                 s.after_each.push(("sample_clock".into(), s.after));
             }
         }
@@ -353,7 +354,15 @@ fn finite(v: f64) -> Option<f64> {
 struct HeldOutClockShare {
     own: f64,
     predicted: f64,
+    /// The largest share of the predicted clocks read at [`HELD_OUT_NULL_SHIFTS`] shifted times.
+    null_max: f64,
+    /// The rotation phase's degrees of freedom with the motion alone over those with the timing
+    /// model too (its six unknowns a sample), which a chi^2/dof after the clocks is scaled by.
+    dof_ratio: f64,
 }
+
+/// How many shifted readings of the predicted clocks score a held-out recording's null.
+const HELD_OUT_NULL_SHIFTS: usize = 9;
 
 /// `sample_clock`: the packages' clocks that calibrate fitted, named when the fitted clocks
 /// remove more of the rotation phase's misfit than the same clocks read at shifted times (rank
@@ -438,9 +447,23 @@ fn sample_clock_test(
             let sens = sensors(&array.array, &st.params);
             let problem = ClockProblem::new(&sens, d, &st.motion, dynamic_w, &package_of);
             let rate_given = d.reference_rate_rad_s.is_some();
+            let span_s = d.t_s.last().copied().unwrap_or(0.0) - d.t_s.first().copied().unwrap_or(0.0);
+            let shifts: Vec<f64> =
+                (1..=HELD_OUT_NULL_SHIFTS).map(|k| span_s * k as f64 / (HELD_OUT_NULL_SHIFTS + 1) as f64).collect();
+            let (predicted_share, null) =
+                problem.share_removed_motion_refitted(&sens, &st.motion, rate_given, &predicted, &shifts);
+            let free = if rate_given { 6 } else { 9 };
+            let (mut with_motion, mut with_timing) = (0.0, 0.0);
+            for i in 0..d.samples() {
+                let used = d.used[i * d.outputs.ncols()..(i + 1) * d.outputs.ncols()].iter().filter(|&&u| u).count();
+                with_motion += used.saturating_sub(free) as f64;
+                with_timing += used.saturating_sub(free + TIMING_UNKNOWNS_PER_SAMPLE) as f64;
+            }
             *share = Some(HeldOutClockShare {
-                own: problem.share_removed_motion_refitted(&sens, &st.motion, rate_given, &theirs),
-                predicted: problem.share_removed_motion_refitted(&sens, &st.motion, rate_given, &predicted),
+                own: problem.share_removed_motion_refitted(&sens, &st.motion, rate_given, &theirs, &[]).0,
+                predicted: predicted_share,
+                null_max: null.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+                dof_ratio: with_motion / with_timing.max(1.0),
             });
         }
     }
@@ -461,10 +484,16 @@ fn sample_clock_test(
             let hi = scored.iter().map(f).fold(f64::NEG_INFINITY, f64::max);
             format!("{:.1}-{:.1}%", 100.0 * lo, 100.0 * hi)
         };
+        let each: Vec<String> = scored
+            .iter()
+            .map(|s| format!("{:.1}/{:.1}/{:.1}", 100.0 * s.predicted, 100.0 * s.null_max, 100.0 * s.own))
+            .collect();
         format!(
-            "; on the held-out recordings' accelerometers, these relative rates (phases from their own gyroscopes) remove {} of the rotation phase's misfit (each sample's motion refitted with them), their own gyroscopes' clocks {}",
+            "; on the held-out recordings' accelerometers, these relative rates (phases from their own gyroscopes) remove {} of the rotation phase's misfit (each sample's motion refitted with them), the same read at {HELD_OUT_NULL_SHIFTS} shifted times at most {}, their own gyroscopes' clocks {} (per held-out recording, predicted/null/own, %: {})",
             range(&|s| s.predicted),
-            range(&|s| s.own)
+            range(&|s| s.null_max),
+            range(&|s| s.own),
+            each.join(", ")
         )
     };
     let unresolved =
