@@ -624,3 +624,50 @@ impl ClockProblem {
         (current, normal, cost)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{DMatrix, DVector};
+
+    use super::least_squares_misfit;
+
+    /// A design of `rows x columns` with entries of very different scales (the timing columns are
+    /// the motion's gains times ages of about 1e-4 s), from a fixed sequence.
+    fn design(rows: usize, columns: usize) -> DMatrix<f64> {
+        DMatrix::from_fn(rows, columns, |i, j| {
+            let x = ((i * 37 + j * 101) as f64 * 0.618_033_988_749_895).fract() - 0.5;
+            if j >= 9 { 1e-4 * x } else { x }
+        })
+    }
+
+    /// Against the normal equations (an independent route): on a full-rank design the misfit is
+    /// `r^T r - b^T (A^T A)^-1 b` with `b = A^T r`, to 1e-9 relative.
+    #[test]
+    fn the_misfit_matches_the_normal_equations_on_a_full_rank_design() {
+        let a = design(24, 15);
+        let r = DVector::from_fn(24, |i, _| ((i * 13) as f64 * 0.414_213_562_373_095).fract() - 0.5);
+        let b = a.transpose() * &r;
+        let normal = a.transpose() * &a;
+        let x = normal.cholesky().expect("full rank").solve(&b);
+        let want = r.norm_squared() - b.dot(&x);
+        let got = least_squares_misfit(a, &r);
+        assert!((got - want).abs() <= 1e-9 * want, "{got} against {want}");
+    }
+
+    /// A column the others span adds nothing: the misfit with a repeated column (scaled) equals the
+    /// misfit without it, and a zero column is left out.
+    #[test]
+    fn a_dependent_or_zero_column_changes_nothing() {
+        let a = design(24, 12);
+        let r = DVector::from_fn(24, |i, _| ((i * 7) as f64 * 0.302_775_637_731_995).fract() - 0.5);
+        let base = least_squares_misfit(a.clone(), &r);
+        let mut repeated = a.clone().insert_column(12, 0.0);
+        let copy = repeated.column(3) * 2.5;
+        repeated.set_column(12, &copy);
+        let zero = a.insert_column(12, 0.0);
+        for (name, m) in [("repeated", repeated), ("zero", zero)] {
+            let got = least_squares_misfit(m, &r);
+            assert!((got - base).abs() <= 1e-9 * base, "{name}: {got} against {base}");
+        }
+    }
+}
