@@ -69,15 +69,24 @@ pub fn leverage(d: &DynamicData, j: usize, local: f64) -> f64 {
 /// the static noise `sigma` of one sample, m/s^2.
 pub fn chi2_dof(d: &DynamicData, rms: &[f64], sigma: &[f64]) -> f64 {
     let n = d.outputs.ncols();
-    let local = local_unknowns(d);
     let mut num = 0.0;
-    let mut den = 0.0;
     for j in 0..n {
         let count = (0..d.samples()).filter(|&i| d.used[i * n + j]).count() as f64;
         num += rms[j].powi(2) * count / sigma[j].powi(2);
+    }
+    num / dof(d, local_unknowns(d))
+}
+
+/// The rotation phase's degrees of freedom when every sample spends `local` unknowns on itself:
+/// `sum_j c_j / L_j`, the denominator of [`chi2_dof`] (module docs).
+pub fn dof(d: &DynamicData, local: f64) -> f64 {
+    let n = d.outputs.ncols();
+    let mut den = 0.0;
+    for j in 0..n {
+        let count = (0..d.samples()).filter(|&i| d.used[i * n + j]).count() as f64;
         den += count / leverage(d, j, local);
     }
-    num / den
+    den
 }
 
 #[cfg(test)]

@@ -47,6 +47,7 @@ use crate::selfcal::calibrate::{
     CalibrateSettings, Calibration, calibrate, corrected_dynamic, gyroscope_clocks, prepare_dynamic,
 };
 use crate::selfcal::clock::SampleClock;
+use crate::selfcal::misfit;
 use crate::selfcal::model::{PER_ACCEL, sensors};
 use crate::selfcal::predict::{HeldOut, HeldOutState, Refit, predict_as_fitted, predict_with_state};
 use crate::selfcal::recording::Recording;
@@ -452,18 +453,12 @@ fn sample_clock_test(
                 (1..=HELD_OUT_NULL_SHIFTS).map(|k| span_s * k as f64 / (HELD_OUT_NULL_SHIFTS + 1) as f64).collect();
             let (predicted_share, null) =
                 problem.share_removed_motion_refitted(&sens, &st.motion, rate_given, &predicted, &shifts);
-            let free = if rate_given { 6 } else { 9 };
-            let (mut with_motion, mut with_timing) = (0.0, 0.0);
-            for i in 0..d.samples() {
-                let used = d.used[i * d.outputs.ncols()..(i + 1) * d.outputs.ncols()].iter().filter(|&&u| u).count();
-                with_motion += used.saturating_sub(free) as f64;
-                with_timing += used.saturating_sub(free + TIMING_UNKNOWNS_PER_SAMPLE) as f64;
-            }
+            let local = misfit::local_unknowns(d);
             *share = Some(HeldOutClockShare {
                 own: problem.share_removed_motion_refitted(&sens, &st.motion, rate_given, &theirs, &[]).0,
                 predicted: predicted_share,
                 null_max: null.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-                dof_ratio: with_motion / with_timing.max(1.0),
+                dof_ratio: misfit::dof(d, local) / misfit::dof(d, local + TIMING_UNKNOWNS_PER_SAMPLE as f64),
             });
         }
     }
