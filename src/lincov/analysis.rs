@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use super::dynamics::{Linearisation, LinearisationError, linearise};
 use super::nonlinearity::{Probe, SIGMA_POINT, index, navigate_probes, pair_index, principal_direction};
 use super::norm::{GaussNorm, ScaleMixture, turned_axes};
-use super::sources::{calibration_with, nominal_errors, nominal_parameters, reference, truths};
+use super::sources::{Calibration, calibration_with, nominal_errors, nominal_parameters, reference, truths};
 use crate::calib::params::PER_ACCEL;
 use crate::config::calibration::Estimator;
 use crate::mc::Cell;
@@ -158,25 +158,22 @@ struct Block {
     noise_unit: Matrix3<f64>,
 }
 
-/// What one Gaussian (one truth) gives a block: its covariance, and the budget's parts.
+/// What one Gaussian (one truth) gives a block: its covariance and mean, and what makes it
+/// unbounded.
 struct Part {
     cov: Matrix3<f64>,
     mean: Vector3<f64>,
-    /// Per parameter.
-    shares: Vec<f64>,
-    fixture: f64,
-    noise: f64,
     /// The unidentifiable parameters (at this component's truth) whose error reaches the block:
     /// the component is then unbounded.
     unbounded_by: Vec<String>,
 }
 
-impl Part {
-    /// Parameters' covariance `cov` and mean, their shares, and the noise's covariance, with no
-    /// fixture and nothing unbounded.
-    fn without_fixture(cov: Matrix3<f64>, mean: Vector3<f64>, shares: Vec<f64>, noise: Matrix3<f64>) -> Self {
-        Part { cov: cov + noise, mean, shares, fixture: 0.0, noise: noise.trace(), unbounded_by: vec![] }
-    }
+/// A block's error budget over a compensation's components (their weighted mean): per
+/// parameter, the fixture's and the noise's shares of `E |e|^2`.
+struct Shares {
+    parameters: Vec<f64>,
+    fixture: f64,
+    noise: f64,
 }
 
 /// A parameter covariance and how to multiply by it.
@@ -209,19 +206,33 @@ impl ParamCov<'_> {
     }
 }
 
-/// `S C S^T` and the shares `diag(S^T S C)` (see [`Source::Parameter`]). A block-diagonal `C`
-/// goes 7 x 7 block by block on the matrices' storage (column-major), without allocating but
-/// the shares.
+/// `S C S^T` and the shares `diag(S^T S C)` (see [`Source::Parameter`]).
 fn propagate(s: &DMatrix<f64>, c: &ParamCov<'_>) -> (Matrix3<f64>, Vec<f64>) {
+    let mut shares = vec![0.0; s.ncols()];
+    let cov = propagate_into(s, c, Some(&mut shares));
+    (cov, shares)
+}
+
+/// `S C S^T` alone (a mixture's truths: their shares go to the budget through the mean of their
+/// covariances, see [`Prepared::shares`]).
+fn propagate_cov(s: &DMatrix<f64>, c: &ParamCov<'_>) -> Matrix3<f64> {
+    propagate_into(s, c, None)
+}
+
+/// `S C S^T`, and the shares `diag(S^T S C)` into `shares` where asked. A block-diagonal `C` goes
+/// 7 x 7 block by block on the matrices' storage (column-major), without allocating.
+fn propagate_into(s: &DMatrix<f64>, c: &ParamCov<'_>, mut shares: Option<&mut [f64]>) -> Matrix3<f64> {
     if !c.block_diagonal {
         let sc = c.left(s);
-        let cov = Matrix3::from_fn(|r, q| (0..s.ncols()).map(|i| sc[(r, i)] * s[(q, i)]).sum());
-        let shares = (0..s.ncols()).map(|i| (0..3).map(|r| s[(r, i)] * sc[(r, i)]).sum()).collect();
-        return (cov, shares);
+        if let Some(shares) = shares {
+            for (i, share) in shares.iter_mut().enumerate() {
+                *share = (0..3).map(|r| s[(r, i)] * sc[(r, i)]).sum();
+            }
+        }
+        return Matrix3::from_fn(|r, q| (0..s.ncols()).map(|i| sc[(r, i)] * s[(q, i)]).sum());
     }
     let p = s.ncols();
     let (sd, cd) = (s.as_slice(), c.cov.as_slice());
-    let mut shares = vec![0.0; p];
     let mut cov = [[0.0; 3]; 3];
     for o in (0..p).step_by(PER_ACCEL) {
         // sc = S_j C_j, 3 x 7, at a fixed size (summed over k in order, as by hand).
@@ -231,7 +242,9 @@ fn propagate(s: &DMatrix<f64>, c: &ParamCov<'_>) -> (Matrix3<f64>, Vec<f64>) {
         for col in 0..PER_ACCEL {
             let sc_col = sc_j.column(col);
             let s_col = &sd[3 * (o + col)..3 * (o + col) + 3];
-            shares[o + col] = s_col[0] * sc_col[0] + s_col[1] * sc_col[1] + s_col[2] * sc_col[2];
+            if let Some(shares) = shares.as_deref_mut() {
+                shares[o + col] = s_col[0] * sc_col[0] + s_col[1] * sc_col[1] + s_col[2] * sc_col[2];
+            }
             for r in 0..3 {
                 for q in 0..3 {
                     cov[r][q] += sc_col[r] * s_col[q];
@@ -239,7 +252,7 @@ fn propagate(s: &DMatrix<f64>, c: &ParamCov<'_>) -> (Matrix3<f64>, Vec<f64>) {
             }
         }
     }
-    (Matrix3::from_fn(|r, q| cov[r][q]), shares)
+    Matrix3::from_fn(|r, q| cov[r][q])
 }
 
 /// The parameters of the null directions `null` (as [`Calibration::null`]) that move the metric
@@ -363,6 +376,11 @@ struct Prepared {
     comp: Compensation,
     /// `parts[component][horizon][metric]`.
     parts: Vec<Vec<Vec<Part>>>,
+    /// `shares[horizon][metric]`: the budget, the weighted mean over the components of each one's
+    /// shares. They are linear in its parameter covariance and the sensitivity is the reference's
+    /// for every component, so they are taken once, from the weighted mean of the components'
+    /// covariances.
+    shares: Vec<Vec<Shares>>,
     /// Per component, its weight: the chance that a fit at its truth stays in the model's
     /// small-error region (1 for one Gaussian).
     weights: Vec<f64>,
@@ -412,8 +430,13 @@ impl Context<'_> {
     }
 
     /// One part per (horizon, metric) block.
-    fn per_block(&self, part: impl Fn(&Block) -> Part) -> Vec<Vec<Part>> {
+    fn per_block<T>(&self, part: impl Fn(&Block) -> T) -> Vec<Vec<T>> {
         self.blocks.iter().map(|hb| hb.iter().map(&part).collect()).collect()
+    }
+
+    /// One part and its shares per (horizon, metric) block, in two tables.
+    fn per_block_with_shares(&self, part: impl Fn(&Block) -> (Part, Shares)) -> (Vec<Vec<Part>>, Vec<Vec<Shares>>) {
+        self.per_block(part).into_iter().map(|hb| hb.into_iter().unzip()).unzip()
     }
 
     fn nominal(&self) -> Prepared {
@@ -421,7 +444,7 @@ impl Context<'_> {
         let (mean, variance) = nominal_errors(cell);
         let cov = DMatrix::from_diagonal(&variance);
         let pc = ParamCov { cov: &cov, block_diagonal: true };
-        let parts = self.per_block(|b| {
+        let (parts, shares) = self.per_block_with_shares(|b| {
             let (c, mut shares) = propagate(&b.s, &pc);
             let mu = &b.s * &mean;
             let mu = Vector3::new(mu[0], mu[1], mu[2]);
@@ -429,7 +452,9 @@ impl Context<'_> {
                 let own = Vector3::new(b.s[(0, i)], b.s[(1, i)], b.s[(2, i)]) * mean[i];
                 *sh += own.dot(&mu);
             }
-            Part::without_fixture(c, mu, shares, self.noise_var * b.noise_unit)
+            let noise = self.noise_var * b.noise_unit;
+            let part = Part { cov: c + noise, mean: mu, unbounded_by: vec![] };
+            (part, Shares { parameters: shares, fixture: 0.0, noise: noise.trace() })
         });
         let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
         if settings.nonlinearity {
@@ -462,13 +487,15 @@ impl Context<'_> {
                 }
             }
         }
-        self.prepared(Compensation::Nominal, vec![parts], &probes, probe_blocks)
+        self.prepared(Compensation::Nominal, parts, shares, &probes, probe_blocks)
     }
 
     fn true_noise(&self) -> Prepared {
         let p = self.cell.layout.len();
-        let parts = self.per_block(|b| {
-            Part::without_fixture(Matrix3::zeros(), Vector3::zeros(), vec![0.0; p], self.noise_var * b.noise_unit)
+        let (parts, shares) = self.per_block_with_shares(|b| {
+            let noise = self.noise_var * b.noise_unit;
+            let part = Part { cov: noise, mean: Vector3::zeros(), unbounded_by: vec![] };
+            (part, Shares { parameters: vec![0.0; p], fixture: 0.0, noise: noise.trace() })
         });
         let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
         if self.settings.nonlinearity || self.noise_var == 0.0 {
@@ -482,7 +509,7 @@ impl Context<'_> {
                 linear: None,
             });
         }
-        let mut prepared = self.prepared(Compensation::True, vec![parts], &probes, probe_blocks);
+        let mut prepared = self.prepared(Compensation::True, parts, shares, &probes, probe_blocks);
         if self.settings.nonlinearity && self.noise_var > 0.0 {
             prepared.truth_index = self.noise_truth_index();
         }
@@ -518,14 +545,16 @@ impl Context<'_> {
     fn prepared(
         &self,
         comp: Compensation,
-        parts: Vec<Vec<Vec<Part>>>,
+        parts: Vec<Vec<Part>>,
+        shares: Vec<Vec<Shares>>,
         probes: &[Probe],
         probe_blocks: Vec<ProbeBlock>,
     ) -> Prepared {
         Prepared {
             comp,
-            weights: vec![1.0; parts.len()],
-            parts,
+            weights: vec![1.0],
+            parts: vec![parts],
+            shares,
             navigated: self.navigate(probes, &probe_blocks),
             probes: probe_blocks,
             unbounded: vec![vec![vec![]; 4]; self.blocks.len()],
@@ -551,41 +580,42 @@ impl Context<'_> {
         let perfect = cell.calibration.pose.is_perfect();
         // The region the Monte Carlo's fits are refused outside of.
         let bounds = crate::calib::estimate::small_error_bounds(layout);
-        let per_truth: Vec<Option<(Vec<Vec<Part>>, f64)>> = xs
-            .par_iter()
-            .map(|x| {
-                let mut cal = calibration_with(cell, x, self.density, single);
-                let fixture = (!perfect).then_some(&mut cal.fixture);
-                let weight = stay_in_small_error_region(&mut cal.covariance, fixture, x, &bounds);
-                if weight.is_nan() || weight <= 0.0 {
-                    return None;
-                }
-                let pc = ParamCov { cov: &cal.covariance, block_diagonal: perfect };
-                let parts = self.per_block(|b| {
-                    let (c, mut shares) = propagate(&b.s, &pc);
-                    // The fixture's part of each parameter's share is its own source.
-                    let mut fixture = 0.0;
-                    if !perfect {
-                        let fx = ParamCov { cov: &cal.fixture, block_diagonal: false };
-                        let (_, fix_shares) = propagate(&b.s, &fx);
-                        for (s, f) in shares.iter_mut().zip(&fix_shares) {
-                            *s -= f;
-                            fixture += f;
+        let p = layout.len();
+        // Chunks of truths in parallel, each summing its truths' weighted covariances in order
+        // (the budget's mean covariance: the same bits on any number of threads).
+        let per_chunk: Vec<(Vec<Option<TruthParts>>, WeightedSum)> = xs
+            .par_chunks(TRUTH_CHUNK)
+            .map(|chunk| {
+                let mut sum = WeightedSum::new(p, perfect);
+                let parts = chunk
+                    .iter()
+                    .map(|x| {
+                        let mut cal = calibration_with(cell, x, self.density, single);
+                        let fixture = (!perfect).then_some(&mut cal.fixture);
+                        let weight = stay_in_small_error_region(&mut cal.covariance, fixture, x, &bounds);
+                        if weight.is_nan() || weight <= 0.0 {
+                            return None;
                         }
-                    }
-                    let noise = self.noise_var * b.noise_unit;
-                    Part {
-                        cov: c + noise,
-                        mean: Vector3::zeros(),
-                        shares,
-                        fixture,
-                        noise: noise.trace(),
-                        unbounded_by: reached_by(&b.s, &cal.null, &target, layout),
-                    }
-                });
-                Some((parts, weight))
+                        sum.add(&cal, weight);
+                        let pc = ParamCov { cov: &cal.covariance, block_diagonal: perfect };
+                        let parts = self.per_block(|b| Part {
+                            cov: propagate_cov(&b.s, &pc) + self.noise_var * b.noise_unit,
+                            mean: Vector3::zeros(),
+                            unbounded_by: reached_by(&b.s, &cal.null, &target, layout),
+                        });
+                        Some((parts, weight))
+                    })
+                    .collect();
+                (parts, sum)
             })
             .collect();
+        let mut sum = WeightedSum::new(p, perfect);
+        let mut per_truth = Vec::with_capacity(xs.len());
+        for (parts, chunk_sum) in per_chunk {
+            sum.merge(&chunk_sum);
+            per_truth.extend(parts);
+        }
+        let shares = sum.shares(self);
         let excluded = per_truth.iter().filter(|p| p.is_none()).count();
         let kept: Vec<usize> = (0..xs.len()).filter(|&k| per_truth[k].is_some()).collect();
         let xs: Vec<DVector<f64>> = kept.iter().map(|&k| xs[k].clone()).collect();
@@ -718,6 +748,7 @@ impl Context<'_> {
         Ok(Prepared {
             comp: Compensation::Estimated,
             parts: per_truth,
+            shares,
             weights,
             probes: probe_blocks,
             navigated,
@@ -734,7 +765,6 @@ impl Context<'_> {
     fn row(&self, prep: &Prepared, h: usize, m: usize) -> MetricResult {
         let parts = &prep.parts;
         let components = parts.len();
-        let p = self.cell.layout.len();
         let first = &parts[0][h][m];
         let mean_square: f64;
         let (median, p95, p05);
@@ -773,18 +803,12 @@ impl Context<'_> {
                 parts.iter().zip(w).map(|(c, w)| w * c[h][m].cov.trace()).sum::<f64>() / total_weight
             };
         }
-        // Budget: the (weighted) average over components of each part.
-        let n = total_weight;
-        let mut sums = vec![0.0; p];
-        for (c, w) in parts.iter().zip(w) {
-            for (sum, share) in sums.iter_mut().zip(&c[h][m].shares) {
-                *sum += w * share;
-            }
-        }
+        // Budget: the (weighted) average over components (see [`Prepared::shares`]).
+        let shares = &prep.shares[h][m];
         let mut budget: Vec<(Source, f64)> =
-            sums.iter().enumerate().map(|(i, v)| (Source::Parameter(i), v / n)).collect();
-        budget.push((Source::Fixture, parts.iter().zip(w).map(|(c, w)| w * c[h][m].fixture).sum::<f64>() / n));
-        budget.push((Source::Noise, parts.iter().zip(w).map(|(c, w)| w * c[h][m].noise).sum::<f64>() / n));
+            shares.parameters.iter().enumerate().map(|(i, &v)| (Source::Parameter(i), v)).collect();
+        budget.push((Source::Fixture, shares.fixture));
+        budget.push((Source::Noise, shares.noise));
         // Nonlinearity: the probes of this metric (in pairs about the centre) and the centre's
         // (for a mean), against the probed component's spread at this horizon.
         let spread = largest_eigenvalue(&parts[prep.probe_component][h][m].cov).sqrt();
@@ -847,6 +871,72 @@ impl Context<'_> {
             nonlinearity,
             linear: mean_square.is_finite() && nonlinearity <= LINEAR_THRESHOLD,
         }
+    }
+}
+
+/// One kept truth's parts (`[horizon][metric]`) and its weight.
+type TruthParts = (Vec<Vec<Part>>, f64);
+
+/// Truths of a mixture per parallel chunk (fixed, so that the chunks' sums are the same on any
+/// number of threads).
+const TRUTH_CHUNK: usize = 32;
+
+/// The weighted sum of a mixture's parameter covariances (and of their fixture parts), for the
+/// budget ([`Prepared::shares`]). Block by block where the covariances are block-diagonal.
+struct WeightedSum {
+    cov: DMatrix<f64>,
+    /// Empty for a perfect fixture.
+    fixture: DMatrix<f64>,
+    weight: f64,
+    block_diagonal: bool,
+}
+
+impl WeightedSum {
+    fn new(p: usize, perfect: bool) -> Self {
+        let q = if perfect { 0 } else { p };
+        WeightedSum { cov: DMatrix::zeros(p, p), fixture: DMatrix::zeros(q, q), weight: 0.0, block_diagonal: perfect }
+    }
+
+    fn add(&mut self, cal: &Calibration, weight: f64) {
+        self.weight += weight;
+        if self.block_diagonal {
+            for o in (0..self.cov.nrows()).step_by(PER_ACCEL) {
+                for c in o..o + PER_ACCEL {
+                    for r in o..o + PER_ACCEL {
+                        self.cov[(r, c)] += weight * cal.covariance[(r, c)];
+                    }
+                }
+            }
+        } else {
+            self.cov += weight * &cal.covariance;
+            self.fixture += weight * &cal.fixture;
+        }
+    }
+
+    fn merge(&mut self, other: &WeightedSum) {
+        self.weight += other.weight;
+        self.cov += &other.cov;
+        self.fixture += &other.fixture;
+    }
+
+    /// Each block's budget from the weighted mean covariance: the parameters' shares less the
+    /// fixture's part of each, which is the fixture's share.
+    fn shares(&self, ctx: &Context<'_>) -> Vec<Vec<Shares>> {
+        let mean = &self.cov / self.weight;
+        let pc = ParamCov { cov: &mean, block_diagonal: self.block_diagonal };
+        let fixture = (!self.block_diagonal).then(|| &self.fixture / self.weight);
+        ctx.per_block(|b| {
+            let (_, mut parameters) = propagate(&b.s, &pc);
+            let mut fixture_share = 0.0;
+            if let Some(fixture) = &fixture {
+                let (_, fix_shares) = propagate(&b.s, &ParamCov { cov: fixture, block_diagonal: false });
+                for (s, f) in parameters.iter_mut().zip(&fix_shares) {
+                    *s -= f;
+                    fixture_share += f;
+                }
+            }
+            Shares { parameters, fixture: fixture_share, noise: (ctx.noise_var * b.noise_unit).trace() }
+        })
     }
 }
 

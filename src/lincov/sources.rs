@@ -97,7 +97,8 @@ pub fn truths(cell: &Cell, seed: u64, count: usize) -> Vec<DVector<f64>> {
 pub struct Calibration {
     /// `F^-1` with the fixture's tilts marginalised (the pseudo-inverse on the identifiable part).
     pub covariance: DMatrix<f64>,
-    /// The part of `covariance` the fixture's prior adds (zero for a perfect fixture).
+    /// The part of `covariance` the fixture's prior adds (empty, 0 x 0, for a perfect fixture:
+    /// it adds nothing).
     pub fixture: DMatrix<f64>,
     /// Parameter-space directions the schedule cannot identify (unit length in target units,
     /// mapped back to SI), with the parameters that share in them.
@@ -118,7 +119,8 @@ pub fn calibration_with(cell: &Cell, x: &DVector<f64>, density_m_s2_per_sqrt_hz:
         // Noise-free: every identifiable parameter is estimated exactly; the null directions do not
         // depend on the noise's scale.
         let null = if find_null { calibration_with(cell, x, 1.0, true).null } else { vec![] };
-        return Calibration { covariance: DMatrix::zeros(p, p), fixture: DMatrix::zeros(p, p), null };
+        let q = if cell.calibration.pose.is_perfect() { 0 } else { p };
+        return Calibration { covariance: DMatrix::zeros(p, p), fixture: DMatrix::zeros(q, q), null };
     }
     let g = cell.calibration.gravity_m_s2;
     let pose = &cell.calibration.pose;
@@ -129,7 +131,7 @@ pub fn calibration_with(cell: &Cell, x: &DVector<f64>, density_m_s2_per_sqrt_hz:
     };
     let (covariance, null) = invert(&fim, !pose.is_perfect());
     let fixture = if pose.is_perfect() {
-        DMatrix::zeros(p, p)
+        DMatrix::zeros(0, 0)
     } else {
         let perfect = fisher_information(&cell.layout, x, &cell.schedule, g, density_m_s2_per_sqrt_hz);
         let (perfect, _) = invert(&perfect, false);
