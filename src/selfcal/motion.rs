@@ -157,6 +157,10 @@ const SADDLE_GAIN: f64 = 25.0;
 /// eigenvalue, the rate moved along its eigenvector by the step (of a few tried) that lowers the
 /// cost most, the linear unknowns re-solved with it. `None` where the block has no negative
 /// curvature or no tried step lowers the cost.
+///
+/// The tried steps are scored on the misfit's profile along the line ([`LineProfile`]: the
+/// linear unknowns eliminated in closed form), and only the best is solved for; where the
+/// profile cannot be formed, each step is solved for.
 fn leave_saddle(
     sensors: &[Sensor],
     data: &SampleData,
@@ -170,20 +174,78 @@ fn leave_saddle(
         return None;
     }
     let v = eig.eigenvectors.column(k).into_owned();
-    let mut best: Option<(SampleMotion, f64)> = None;
-    for t in [0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0] {
-        for sign in [1.0, -1.0] {
-            let start = SampleMotion { omega_rad_s: m.omega_rad_s + v * (sign * t), ..*m };
-            let (trial, ct) = solve(sensors, data, start, true);
-            // Kept only for a clear gain (a chi^2 fall above 25, five sigmas): where the rate is
-            // not resolved at all (a flat array) a rate fitted to the noise alone lowers the
-            // chi^2 by about its 3 unknowns, and must not be taken for one.
+    let solved = |t: f64| solve(sensors, data, SampleMotion { omega_rad_s: m.omega_rad_s + v * t, ..*m }, true);
+    // Kept only for a clear gain (a chi^2 fall above 25, five sigmas): where the rate is not
+    // resolved at all (a flat array) a rate fitted to the noise alone lowers the chi^2 by about
+    // its 3 unknowns, and must not be taken for one.
+    let steps = SADDLE_STEPS.iter().flat_map(|&t| [t, -t]);
+    let Some(profile) = LineProfile::new(sensors, data, m, &v) else {
+        let mut best: Option<(SampleMotion, f64)> = None;
+        for t in steps {
+            let (trial, ct) = solved(t);
             if ct < best.as_ref().map_or(c - SADDLE_GAIN, |b| b.1) {
                 best = Some((trial, ct));
             }
         }
+        return best;
+    };
+    let mut best: Option<(f64, f64)> = None;
+    for t in steps {
+        let ct = profile.cost(t);
+        if ct < best.map_or(c - SADDLE_GAIN, |b| b.1) {
+            best = Some((t, ct));
+        }
     }
-    best
+    let (trial, ct) = solved(best?.0);
+    (ct < c - SADDLE_GAIN).then_some((trial, ct))
+}
+
+/// The rate steps (rad/s, each taken both ways) [`leave_saddle`] tries.
+const SADDLE_STEPS: [f64; 7] = [0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
+
+/// A sample's misfit along the line `omega + t v` with the specific force and angular
+/// acceleration re-solved at every `t`. The outputs are linear in those six unknowns, with
+/// coefficients that do not depend on the rate, and quadratic in `t`: the residual is
+/// `r - t d1 - t^2 d2` (`d1` the rate's derivative along `v`, `d2 = v^T H v / 2` with `H` the
+/// output's second derivative in the rate). With the six unknowns eliminated by least squares
+/// the misfit is the quartic `u^T G u`, `u = (1, -t, -t^2)`, `G` the Gram matrix of `(r, d1, d2)`
+/// in the weighted metric projected off the unknowns' columns.
+struct LineProfile {
+    gram: Matrix3<f64>,
+}
+
+impl LineProfile {
+    /// `None` where the six unknowns' normal matrix is not positive definite.
+    fn new(sensors: &[Sensor], data: &SampleData, m: &SampleMotion, v: &Vector3<f64>) -> Option<Self> {
+        let mut n = SMatrix::<f64, 6, 6>::zeros();
+        let mut b = SMatrix::<f64, 6, 3>::zeros();
+        let mut e = Matrix3::zeros();
+        for (j, s) in sensors.iter().enumerate() {
+            if !data.used[j] {
+                continue;
+            }
+            let w = data.weights[j];
+            let d = s.d_motion(m);
+            let linear = SVector::<f64, 6>::from_column_slice(&d[..6]);
+            let rate = Vector3::new(d[6], d[7], d[8]);
+            let coefficients = Vector3::new(
+                data.outputs[j] - s.output(&m.specific_force_m_s2(&s.position_m)),
+                rate.dot(v),
+                0.5 * v.dot(&(s.d2_rate() * v)),
+            );
+            n.ger(w, &linear, &linear, 1.0);
+            b.ger(w, &linear, &coefficients, 1.0);
+            e.ger(w, &coefficients, &coefficients, 1.0);
+        }
+        let chol = n.cholesky()?;
+        Some(LineProfile { gram: e - b.transpose() * chol.solve(&b) })
+    }
+
+    /// The misfit at `omega + t v`, the linear unknowns re-solved.
+    fn cost(&self, t: f64) -> f64 {
+        let u = Vector3::new(1.0, -t, -t * t);
+        u.dot(&(self.gram * u))
+    }
 }
 
 /// The local normal matrix of a sample's motion (its inverse is the motion's covariance given
@@ -347,6 +409,31 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The misfit's profile along a rate line against the solve of the linear unknowns at each
+    /// point (the misfit itself, evaluated from the model's outputs), on outputs off any rigid
+    /// motion, in both directions and out to the farthest step tried.
+    #[test]
+    fn the_line_profile_is_the_misfit_with_the_linear_unknowns_resolved() {
+        let sensors = board();
+        let outputs: Vec<f64> = (0..sensors.len()).map(|j| 3.0 * ((j as f64) * 1.7).sin() + 9.0).collect();
+        let used: Vec<bool> = (0..sensors.len()).map(|j| j != 5).collect();
+        let weights: Vec<f64> = (0..sensors.len()).map(|j| 1e3 * (1.0 + 0.1 * j as f64)).collect();
+        let data = SampleData { outputs: &outputs, used: &used, weights: &weights };
+        let m = SampleMotion {
+            f_m_s2: Vector3::new(1.0, -2.0, 9.0),
+            alpha_rad_s2: Vector3::new(40.0, 10.0, -25.0),
+            omega_rad_s: Vector3::new(2.0, -1.0, 3.0),
+        };
+        let v = Vector3::new(0.3, -0.8, 0.5).normalize();
+        let profile = LineProfile::new(&sensors, &data, &m, &v).expect("resolved");
+        for t in [0.0, 0.5, -2.0, 7.5, -32.0] {
+            let start = SampleMotion { omega_rad_s: m.omega_rad_s + v * t, ..m };
+            let (_, solved) = solve(&sensors, &data, start, true);
+            let read = profile.cost(t);
+            assert!((read - solved).abs() <= 1e-9 * solved, "t = {t}: profile {read} vs solve {solved}");
         }
     }
 
