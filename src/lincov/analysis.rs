@@ -615,7 +615,6 @@ impl Context<'_> {
             sum.merge(&chunk_sum);
             per_truth.extend(parts);
         }
-        let shares = sum.shares(self);
         let excluded = per_truth.iter().filter(|p| p.is_none()).count();
         let kept: Vec<usize> = (0..xs.len()).filter(|&k| per_truth[k].is_some()).collect();
         let xs: Vec<DVector<f64>> = kept.iter().map(|&k| xs[k].clone()).collect();
@@ -641,6 +640,7 @@ impl Context<'_> {
                 ),
             });
         }
+        let shares = sum.shares(self);
         let mut unbounded: Vec<Vec<Vec<String>>> = vec![vec![vec![]; 4]; horizons];
         for parts in &per_truth {
             for (h, hp) in parts.iter().enumerate() {
