@@ -908,8 +908,9 @@ impl WeightedSum {
                 }
             }
         } else {
-            self.cov += weight * &cal.covariance;
-            self.fixture += weight * &cal.fixture;
+            // In place (no temporary matrix per truth).
+            self.cov.zip_apply(&cal.covariance, |a, b| *a += weight * b);
+            self.fixture.zip_apply(&cal.fixture, |a, b| *a += weight * b);
         }
     }
 
