@@ -52,13 +52,39 @@ pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_f
     let dim = if omega_fixed { 6 } else { 9 };
     let mut m = start;
     let mut c = cost(sensors, data, &m);
+    // What does not move with the motion, formed once: the outputs are linear in the specific
+    // force and angular acceleration, with coefficients free of the motion, so the normal
+    // matrix's block of those six is the same at every iteration; and the rate's second
+    // derivative is the same at every motion. Each element is summed as `Matrix::ger` sums it
+    // (`(w d_k) d_i`, the accelerometers in order), and only what the solve reads is formed: the
+    // lower triangle (Cholesky reads no more) and the rate's whole 3 x 3 block (its eigen-
+    // decomposition reads both triangles).
+    let mut linear_block = SMatrix::<f64, 9, 9>::zeros();
+    let mut second = Vec::with_capacity(if omega_fixed { 0 } else { sensors.len() });
+    for (j, s) in sensors.iter().enumerate() {
+        if !data.used[j] {
+            continue;
+        }
+        let d = s.d_motion(&m);
+        let w = data.weights[j];
+        for k in 0..6 {
+            let wk = w * d[k];
+            for i in k..6 {
+                linear_block[(i, k)] += wk * d[i];
+            }
+        }
+        if !omega_fixed {
+            second.push(s.d2_rate());
+        }
+    }
     let mut h = SMatrix::<f64, 9, 9>::zeros();
     let mut mu = 0.0_f64;
     let mut escaped = false;
     for _ in 0..50 {
-        h.fill(0.0);
+        h.copy_from(&linear_block);
         let mut g = SVector::<f64, 9>::zeros();
         let mut curvature = Matrix3::zeros();
+        let mut used = 0;
         for (j, s) in sensors.iter().enumerate() {
             if !data.used[j] {
                 continue;
@@ -66,11 +92,24 @@ pub fn solve(sensors: &[Sensor], data: &SampleData, start: SampleMotion, omega_f
             let r = data.outputs[j] - s.output(&m.specific_force_m_s2(&s.position_m));
             let d = SVector::<f64, 9>::from(s.d_motion(&m));
             let w = data.weights[j];
-            h.ger(w, &d, &d, 1.0);
-            g.axpy(w * r, &d, 1.0);
             if !omega_fixed {
-                curvature += rate_curvature(s, w * r);
+                // The rate's rows below the diagonal, then the rate block above it.
+                for k in 0..9 {
+                    let wk = w * d[k];
+                    for i in k.max(6)..9 {
+                        h[(i, k)] += wk * d[i];
+                    }
+                }
+                for k in 7..9 {
+                    let wk = w * d[k];
+                    for i in 6..k {
+                        h[(i, k)] += wk * d[i];
+                    }
+                }
+                curvature -= second[used] * (w * r);
             }
+            g.axpy(w * r, &d, 1.0);
+            used += 1;
         }
         if omega_fixed {
             for i in 6..9 {
