@@ -413,7 +413,7 @@ fn gauss_newton(
     trace: &mut Vec<GnTrial>,
 ) -> (usize, bool) {
     let dynamic = dynamic.filter(|d| d.samples() > 0);
-    let mut lambda = 1e-6;
+    let mut lambda = UNDAMPED_LAMBDA;
     let mut cost = total_cost(array, stat, dynamic, settings, w, state);
     for it in 0..max_iterations {
         let normal = normal_equations_with(array, stat, dynamic, settings, w, state, active, true);
@@ -426,6 +426,14 @@ fn gauss_newton(
             let trial = apply_step(array, dynamic, w, state, &step);
             let trial_cost = total_cost(array, stat, dynamic, settings, w, &trial);
             trace.push(GnTrial { iteration: it, lambda, cost, trial_cost });
+            if trial_cost > cost && lambda <= UNDAMPED_LAMBDA && predicted_fall(&normal, &step) < 1.0 {
+                // The undamped step, predicted to lower the chi^2 by less than 1, raised it: the
+                // point is already within every parameter's one-sigma interval (a chi^2 rise of
+                // 1) of the quadratic model's minimum, and the cost is not that smooth (each
+                // sample's motion is re-solved, and a clock's sawtooth wraps); raising the
+                // damping would only find falls of that size, at a re-solve of every motion each.
+                return (it + 1, true);
+            }
             if trial_cost <= cost {
                 let decrease = cost - trial_cost;
                 *state = trial;
@@ -436,7 +444,7 @@ fn gauss_newton(
                 // Marquardt damping relative to the diagonal: below 1e-6 the step is the
                 // Gauss-Newton step to working precision, and a lower floor only costs refits
                 // climbing back after a rejected step.
-                lambda = (lambda * 0.1).max(1e-6);
+                lambda = (lambda * 0.1).max(UNDAMPED_LAMBDA);
                 accepted = true;
                 if done {
                     return (it + 1, true);
@@ -451,6 +459,15 @@ fn gauss_newton(
         }
     }
     (max_iterations, false)
+}
+
+/// The damping of [`gauss_newton`]'s first try, and its floor: Marquardt damping relative to the
+/// diagonal, below which the step is the Gauss-Newton step to working precision.
+const UNDAMPED_LAMBDA: f64 = 1e-6;
+
+/// The fall of the chi^2 that the quadratic model predicts for `step`: `2 g^T s - s^T H s`.
+fn predicted_fall(normal: &Normal, step: &DVector<f64>) -> f64 {
+    2.0 * normal.g.dot(step) - step.dot(&(&normal.h * step))
 }
 
 fn apply_step(array: &Array, dynamic: Option<&DynamicData>, w: &Weights, state: &State, step: &DVector<f64>) -> State {
