@@ -514,6 +514,34 @@ impl ClockProblem {
         out
     }
 
+    /// The optimum over `rows` of the clocks' relative part as linearised at `clocks` (the timing
+    /// motion and the wraps held): `clocks` moved by one full Gauss-Newton step, and the normal
+    /// matrix there (as [`ClockProblem::relative_steps`] returns it). Where the misfit is V-shaped
+    /// at the wraps a step may not lower it, but the step is still where the smooth part of the
+    /// misfit puts the clocks: what the halves' check compares.
+    pub fn linearised_optimum(
+        &self,
+        clocks: &[Option<SampleClock>],
+        rows: Range<usize>,
+    ) -> (Vec<Option<SampleClock>>, DMatrix<f64>) {
+        let (_, u) = self.cost(clocks, rows.clone());
+        let (h, g) = self.relative_normal(clocks, rows, &u);
+        let (inv, _) = crate::stats::symmetric_pinv(&h, 1e-12);
+        let step = &inv * &g;
+        let mut k = 0;
+        let moved = clocks
+            .iter()
+            .map(|c| {
+                c.map(|c| {
+                    let d = [step[3 * k], step[3 * k + 1], step[3 * k + 2]];
+                    k += 1;
+                    c.moved(d)
+                })
+            })
+            .collect();
+        (moved, h)
+    }
+
     /// Gauss-Newton steps on the clocks' relative part over `rows` (the timing motion held at
     /// each linearisation, the wraps held and re-assigned after each step, a step halved until
     /// the misfit falls); the common part (the gauge) does not move. Returns the clocks, the
@@ -525,74 +553,13 @@ impl ClockProblem {
         rows: Range<usize>,
         steps: usize,
     ) -> (Vec<Option<SampleClock>>, DMatrix<f64>, f64) {
-        use rayon::prelude::*;
         let clocked: Vec<usize> = (0..clocks.len()).filter(|&p| clocks[p].is_some()).collect();
-        let npk = clocks.len() as f64;
         let dim = 3 * clocked.len();
         let mut current = clocks.to_vec();
         let (mut cost, mut u) = self.cost(&current, rows.clone());
         let mut normal = DMatrix::zeros(dim, dim);
         for _ in 0..steps {
-            // Normal equations summed over fixed chunks of samples, the chunks then added in order:
-            // the same bits on any number of threads and under any load (rayon's fold/reduce
-            // groups the sums as its threads split the work).
-            const CHUNK: usize = 256;
-            let chunks = rows.len().div_ceil(CHUNK);
-            let chunk_sums: Vec<(DMatrix<f64>, DVector<f64>)> = (0..chunks)
-                .into_par_iter()
-                .map(|k| {
-                    let mut h = DMatrix::<f64>::zeros(dim, dim);
-                    let mut g = DVector::<f64>::zeros(dim);
-                    let mut tau = vec![0.0; clocks.len()];
-                    let start = rows.start + k * CHUNK;
-                    for i in start..(start + CHUNK).min(rows.end) {
-                        relative_ages(&current, self.t_s[i], &mut tau);
-                        let ui = &u[i - rows.start];
-                        // the package-level row: d r_j / d c_p = gain_j (delta(p, p_j) - 1/P) d age_p / d c_p
-                        let parts: Vec<[f64; 3]> = clocked
-                            .iter()
-                            .map(|&p| current[p].map_or([0.0; 3], |c| c.age_partials(self.t_s[i])))
-                            .collect();
-                        let mut row = vec![0.0; dim];
-                        for j in 0..self.n {
-                            if !self.used[i * self.n + j] {
-                                continue;
-                            }
-                            let gain = self.known_gain[i * self.n + j] + self.gain[j].dot(ui);
-                            let tj = tau[self.package_of[j]];
-                            let r = self.residual[i * self.n + j] + tj * gain;
-                            for (c, &p) in clocked.iter().enumerate() {
-                                let f = (if p == self.package_of[j] { 1.0 } else { 0.0 }) - 1.0 / npk;
-                                for a in 0..3 {
-                                    row[3 * c + a] = gain * f * parts[c][a];
-                                }
-                            }
-                            let w = self.weights[j];
-                            for a in 0..dim {
-                                if row[a] == 0.0 {
-                                    continue;
-                                }
-                                g[a] -= w * row[a] * r;
-                                for b in a..dim {
-                                    h[(a, b)] += w * row[a] * row[b];
-                                }
-                            }
-                        }
-                    }
-                    (h, g)
-                })
-                .collect();
-            let mut h = DMatrix::<f64>::zeros(dim, dim);
-            let mut g = DVector::<f64>::zeros(dim);
-            for (hk, gk) in &chunk_sums {
-                h += hk;
-                g += gk;
-            }
-            for a in 0..dim {
-                for b in 0..a {
-                    h[(a, b)] = h[(b, a)];
-                }
-            }
+            let (h, g) = self.relative_normal(&current, rows.clone(), &u);
             normal = h.clone();
             let (inv, _) = crate::stats::symmetric_pinv(&h, 1e-12);
             let step = &inv * &g;
@@ -622,6 +589,80 @@ impl ClockProblem {
             }
         }
         (current, normal, cost)
+    }
+
+    /// The normal equations of the clocks' relative part over `rows` at `current` (the timing
+    /// motion `u`, one per row, held): the matrix and the gradient over the clocked packages'
+    /// `(rate_offset, drift, phase)`.
+    fn relative_normal(
+        &self,
+        current: &[Option<SampleClock>],
+        rows: Range<usize>,
+        u: &[Vector6<f64>],
+    ) -> (DMatrix<f64>, DVector<f64>) {
+        use rayon::prelude::*;
+        let clocked: Vec<usize> = (0..current.len()).filter(|&p| current[p].is_some()).collect();
+        let npk = current.len() as f64;
+        let dim = 3 * clocked.len();
+        // Normal equations summed over fixed chunks of samples, the chunks then added in order:
+        // the same bits on any number of threads and under any load (rayon's fold/reduce
+        // groups the sums as its threads split the work).
+        const CHUNK: usize = 256;
+        let chunks = rows.len().div_ceil(CHUNK);
+        let chunk_sums: Vec<(DMatrix<f64>, DVector<f64>)> = (0..chunks)
+            .into_par_iter()
+            .map(|k| {
+                let mut h = DMatrix::<f64>::zeros(dim, dim);
+                let mut g = DVector::<f64>::zeros(dim);
+                let mut tau = vec![0.0; current.len()];
+                let start = rows.start + k * CHUNK;
+                for i in start..(start + CHUNK).min(rows.end) {
+                    relative_ages(current, self.t_s[i], &mut tau);
+                    let ui = &u[i - rows.start];
+                    // the package-level row: d r_j / d c_p = gain_j (delta(p, p_j) - 1/P) d age_p / d c_p
+                    let parts: Vec<[f64; 3]> =
+                        clocked.iter().map(|&p| current[p].map_or([0.0; 3], |c| c.age_partials(self.t_s[i]))).collect();
+                    let mut row = vec![0.0; dim];
+                    for j in 0..self.n {
+                        if !self.used[i * self.n + j] {
+                            continue;
+                        }
+                        let gain = self.known_gain[i * self.n + j] + self.gain[j].dot(ui);
+                        let tj = tau[self.package_of[j]];
+                        let r = self.residual[i * self.n + j] + tj * gain;
+                        for (c, &p) in clocked.iter().enumerate() {
+                            let f = (if p == self.package_of[j] { 1.0 } else { 0.0 }) - 1.0 / npk;
+                            for a in 0..3 {
+                                row[3 * c + a] = gain * f * parts[c][a];
+                            }
+                        }
+                        let w = self.weights[j];
+                        for a in 0..dim {
+                            if row[a] == 0.0 {
+                                continue;
+                            }
+                            g[a] -= w * row[a] * r;
+                            for b in a..dim {
+                                h[(a, b)] += w * row[a] * row[b];
+                            }
+                        }
+                    }
+                }
+                (h, g)
+            })
+            .collect();
+        let mut h = DMatrix::<f64>::zeros(dim, dim);
+        let mut g = DVector::<f64>::zeros(dim);
+        for (hk, gk) in &chunk_sums {
+            h += hk;
+            g += gk;
+        }
+        for a in 0..dim {
+            for b in 0..a {
+                h[(a, b)] = h[(b, a)];
+            }
+        }
+        (h, g)
     }
 }
 
