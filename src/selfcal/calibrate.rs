@@ -380,8 +380,8 @@ fn estimate_clocks(
     // on the two halves of the rotation phase: the RMS of their relative rate offsets' difference
     // over its sigma (the Birge ratio) inflates every sigma where it exceeds 1.
     let problem = problem_at(&fit);
-    let (clocks_final, normal, _) = problem.relative_steps(&clocks, all.clone(), 1);
-    clocks = clocks_final;
+    clocks = problem.relative_steps(&clocks, all.clone(), 1).0;
+    let normal = problem.relative_information(&clocks, all.clone());
     let timing = problem.timing(&clocks);
     let split = d.t_s.partition_point(|&t| t < t_ref_s);
     // Each half's optimum as linearised at the final clocks. A half fitted by steps that must

@@ -325,19 +325,7 @@ impl ClockProblem {
             h += d * d.transpose() * w;
             b -= d * (w * r);
         }
-        let u = {
-            let scale = (0..6).map(|a| h[(a, a)]).fold(0.0, f64::max);
-            // Solved where the smallest eigenvalue exceeds 1e-10 of the largest diagonal element.
-            // `1 / |H^-1|_F` bounds the smallest eigenvalue from below, so where it clears twice
-            // the threshold the eigenvalues need not be computed (the same decision, cheaper).
-            let chol = if scale > 0.0 { h.cholesky() } else { None };
-            chol.filter(|c| {
-                let bound = 1.0 / c.inverse().norm();
-                bound > 2e-10 * scale || h.symmetric_eigenvalues().min() > 1e-10 * scale
-            })
-            .map(|c| c.solve(&b))
-        }
-        .unwrap_or_else(Vector6::zeros);
+        let u = timing_solve(&h).map(|c| c.solve(&b)).unwrap_or_else(Vector6::zeros);
         let mut cost = 0.0;
         for j in 0..self.n {
             if self.used[base + j] {
@@ -514,18 +502,18 @@ impl ClockProblem {
         out
     }
 
-    /// The optimum over `rows` of the clocks' relative part as linearised at `clocks` (the timing
-    /// motion and the wraps held): `clocks` moved by one full Gauss-Newton step, and the normal
-    /// matrix there (as [`ClockProblem::relative_steps`] returns it). Where the misfit is V-shaped
-    /// at the wraps a step may not lower it, but the step is still where the smooth part of the
-    /// misfit puts the clocks: what the halves' check compares.
+    /// The optimum over `rows` of the clocks' relative part as linearised at `clocks` (the wraps
+    /// held, each sample's timing motion eliminated): `clocks` moved by one full Gauss-Newton
+    /// step, and the information there ([`ClockProblem::relative_information`]). Where the misfit
+    /// is V-shaped at the wraps a step may not lower it, but the step is still where the smooth
+    /// part of the misfit puts the clocks: what the halves' check compares.
     pub fn linearised_optimum(
         &self,
         clocks: &[Option<SampleClock>],
         rows: Range<usize>,
     ) -> (Vec<Option<SampleClock>>, DMatrix<f64>) {
         let (_, u) = self.cost(clocks, rows.clone());
-        let (h, g) = self.relative_normal(clocks, rows, &u);
+        let (h, g) = self.relative_normal(clocks, rows, &u, true);
         let (inv, _) = crate::stats::symmetric_pinv(&h, 1e-12);
         let step = &inv * &g;
         let mut k = 0;
@@ -544,23 +532,20 @@ impl ClockProblem {
 
     /// Gauss-Newton steps on the clocks' relative part over `rows` (the timing motion held at
     /// each linearisation, the wraps held and re-assigned after each step, a step halved until
-    /// the misfit falls); the common part (the gauge) does not move. Returns the clocks, the
-    /// normal matrix over the clocked packages' `(rate_offset, drift, phase)` at the last
-    /// linearisation, and the misfit.
+    /// the misfit falls); the common part (the gauge) does not move. Returns the clocks and the
+    /// misfit. The steps' matrix keeps the timing motion held (it is a search direction, each
+    /// step accepted only where the misfit falls); the clocks' information is
+    /// [`ClockProblem::relative_information`].
     pub fn relative_steps(
         &self,
         clocks: &[Option<SampleClock>],
         rows: Range<usize>,
         steps: usize,
-    ) -> (Vec<Option<SampleClock>>, DMatrix<f64>, f64) {
-        let clocked: Vec<usize> = (0..clocks.len()).filter(|&p| clocks[p].is_some()).collect();
-        let dim = 3 * clocked.len();
+    ) -> (Vec<Option<SampleClock>>, f64) {
         let mut current = clocks.to_vec();
         let (mut cost, mut u) = self.cost(&current, rows.clone());
-        let mut normal = DMatrix::zeros(dim, dim);
         for _ in 0..steps {
-            let (h, g) = self.relative_normal(&current, rows.clone(), &u);
-            normal = h.clone();
+            let (h, g) = self.relative_normal(&current, rows.clone(), &u, false);
             let (inv, _) = crate::stats::symmetric_pinv(&h, 1e-12);
             let step = &inv * &g;
             let mut scale = 1.0;
@@ -588,7 +573,15 @@ impl ClockProblem {
                 break;
             }
         }
-        (current, normal, cost)
+        (current, cost)
+    }
+
+    /// The information over `rows` on the clocked packages' `(rate_offset, drift, phase)` at
+    /// `clocks`: the normal matrix with each sample's timing motion eliminated (it is refitted at
+    /// every clock), whose pseudo-inverse is the relative part's covariance.
+    pub fn relative_information(&self, clocks: &[Option<SampleClock>], rows: Range<usize>) -> DMatrix<f64> {
+        let (_, u) = self.cost(clocks, rows.clone());
+        self.relative_normal(clocks, rows, &u, true).0
     }
 
     /// The normal equations of the clocks' relative part over `rows` at `current` (the timing
@@ -599,6 +592,7 @@ impl ClockProblem {
         current: &[Option<SampleClock>],
         rows: Range<usize>,
         u: &[Vector6<f64>],
+        project: bool,
     ) -> (DMatrix<f64>, DVector<f64>) {
         use rayon::prelude::*;
         let clocked: Vec<usize> = (0..current.len()).filter(|&p| current[p].is_some()).collect();
@@ -623,6 +617,10 @@ impl ClockProblem {
                     let parts: Vec<[f64; 3]> =
                         clocked.iter().map(|&p| current[p].map_or([0.0; 3], |c| c.age_partials(self.t_s[i]))).collect();
                     let mut row = vec![0.0; dim];
+                    // With `project`: the sample's timing-motion block `m` and its cross terms with
+                    // the clocks, for the Schur complement below.
+                    let mut m = Matrix6::zeros();
+                    let mut cross = DMatrix::<f64>::zeros(if project { 6 } else { 0 }, dim);
                     for j in 0..self.n {
                         if !self.used[i * self.n + j] {
                             continue;
@@ -637,6 +635,15 @@ impl ClockProblem {
                             }
                         }
                         let w = self.weights[j];
+                        if project {
+                            let du = self.gain[j] * tj;
+                            m += du * du.transpose() * w;
+                            for (a, ra) in row.iter().enumerate() {
+                                for e in 0..6 {
+                                    cross[(e, a)] += w * du[e] * ra;
+                                }
+                            }
+                        }
                         for a in 0..dim {
                             if row[a] == 0.0 {
                                 continue;
@@ -644,6 +651,26 @@ impl ClockProblem {
                             g[a] -= w * row[a] * r;
                             for b in a..dim {
                                 h[(a, b)] += w * row[a] * row[b];
+                            }
+                        }
+                    }
+                    // The sample's timing motion is refitted at every clock (`sample_fit`), so
+                    // the clocks' information is what is left with it eliminated:
+                    // `H -= C^T M^-1 C` (the gradient needs nothing: at the refitted motion the
+                    // residual is orthogonal to its columns). Where `sample_fit` leaves the motion
+                    // at zero (`timing_solve` refuses `m`) nothing is eliminated.
+                    if let Some(chol) = timing_solve(&m).filter(|_| project) {
+                        let y = DMatrix::from_fn(6, dim, |_, _| 0.0);
+                        let mut y = y;
+                        for col in 0..dim {
+                            let v = chol.solve(&Vector6::from_fn(|e, _| cross[(e, col)]));
+                            for e in 0..6 {
+                                y[(e, col)] = v[e];
+                            }
+                        }
+                        for a in 0..dim {
+                            for b in a..dim {
+                                h[(a, b)] -= (0..6).map(|e| cross[(e, a)] * y[(e, b)]).sum::<f64>();
                             }
                         }
                     }
@@ -664,6 +691,19 @@ impl ClockProblem {
         }
         (h, g)
     }
+}
+
+/// The Cholesky factor of a sample's timing-motion normal matrix `h`, where the motion is
+/// solved: where its smallest eigenvalue exceeds 1e-10 of its largest diagonal element. `1 /
+/// |H^-1|_F` bounds the smallest eigenvalue from below, so where it clears twice the threshold the
+/// eigenvalues need not be computed (the same decision, cheaper).
+fn timing_solve(h: &Matrix6<f64>) -> Option<nalgebra::Cholesky<f64, nalgebra::U6>> {
+    let scale = (0..6).map(|a| h[(a, a)]).fold(0.0, f64::max);
+    let chol = if scale > 0.0 { h.cholesky() } else { None };
+    chol.filter(|c| {
+        let bound = 1.0 / c.inverse().norm();
+        bound > 2e-10 * scale || h.symmetric_eigenvalues().min() > 1e-10 * scale
+    })
 }
 
 #[cfg(test)]

@@ -238,7 +238,7 @@ fn the_clock_models_gauge_has_exactly_the_three_common_null_directions() {
     let weights: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
     let package_of: Vec<usize> = array.package_of.iter().map(|p| p.expect("every axis has its package")).collect();
     let problem = ClockProblem::new(&sens, &d, &cal.fit.motion, &weights, &package_of);
-    let (_, normal, _) = problem.relative_steps(&clocks.clocks, 0..d.samples(), 1);
+    let normal = problem.relative_information(&clocks.clocks, 0..d.samples());
     assert_eq!(normal.nrows(), 24);
     // Symmetric (the step fills the upper triangle and mirrors it) and scaled by its diagonal.
     let scale: Vec<f64> = (0..24).map(|i| normal[(i, i)].max(1e-300).sqrt()).collect();
@@ -309,3 +309,4 @@ fn the_share_with_the_motion_refitted_does_not_depend_on_where_the_motion_stoppe
     );
     assert!(refitted_tracked >= held_tracked - 1e-9, "refitted {refitted_tracked:.4} below held {held_tracked:.4}");
 }
+
