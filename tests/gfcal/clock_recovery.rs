@@ -309,4 +309,3 @@ fn the_share_with_the_motion_refitted_does_not_depend_on_where_the_motion_stoppe
     );
     assert!(refitted_tracked >= held_tracked - 1e-9, "refitted {refitted_tracked:.4} below held {held_tracked:.4}");
 }
-
