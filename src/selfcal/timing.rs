@@ -752,3 +752,86 @@ mod tests {
         }
     }
 }
+
+#[cfg(test)]
+mod information_tests {
+    use nalgebra::{DMatrix, Vector6};
+
+    use super::ClockProblem;
+    use crate::selfcal::clock::{SampleClock, relative_ages};
+
+    /// A small problem built by hand: 3 clocked packages of 4 outputs each, 30 samples 16 ms
+    /// apart, gains and residuals from a fixed sequence.
+    fn problem() -> (ClockProblem, Vec<Option<SampleClock>>) {
+        let (n, samples) = (12, 30);
+        // A fixed sequence that is not affine in `k` (an affine one modulo 1 makes the gains span
+        // only two dimensions).
+        let x = |k: usize| ((k as f64 + 1.0).sin() * 43_758.545_3).fract() * 0.5;
+        let problem = ClockProblem {
+            n,
+            t_s: (0..samples).map(|i| 0.016 * i as f64).collect(),
+            residual: (0..samples * n).map(|k| 0.3 * x(3 * k + 1)).collect(),
+            known_gain: (0..samples * n).map(|k| 200.0 * x(5 * k + 2)).collect(),
+            used: vec![true; samples * n],
+            gain: (0..n).map(|j| Vector6::from_fn(|a, _| x(7 * j + a + 3))).collect(),
+            weights: (0..n).map(|j| 1.0 + 0.1 * j as f64).collect(),
+            package_of: (0..n).map(|j| j / 4).collect(),
+        };
+        let clock = |rate: f64, phase: f64| {
+            Some(SampleClock { nominal_hz: 1000.0, rate_offset: rate, drift_per_s: 1e-6, phase_s: phase, t_ref_s: 0.2 })
+        };
+        (problem, vec![clock(2.1e-3, 0.1e-3), clock(-1.3e-3, 0.45e-3), clock(0.4e-3, 0.8e-3)])
+    }
+
+    /// Against the whole problem written out (an independent route): the Gauss-Newton normal
+    /// matrix over the clocks' 9 parameters and every sample's 6 timing-motion unknowns, from the
+    /// model `r + tau_p (c + h . u)` with its Jacobian formed column by column, and the clocks'
+    /// block of its Schur complement `N_cc - N_cu N_uu^-1 N_uc`: `relative_information` equals it
+    /// to 1e-9 of its largest element, and is below the clocks' block with the motion held
+    /// (`N_cc`) by a positive semi-definite difference.
+    #[test]
+    fn the_information_is_the_whole_problems_schur_complement() {
+        let (p, clocks) = problem();
+        let samples = p.t_s.len();
+        let got = p.relative_information(&clocks, 0..samples);
+        let (_, u) = p.cost(&clocks, 0..samples);
+        let (nc, packages) = (9, 3);
+        let dim = nc + 6 * samples;
+        let mut normal = DMatrix::<f64>::zeros(dim, dim);
+        let mut tau = vec![0.0; packages];
+        for i in 0..samples {
+            relative_ages(&clocks, p.t_s[i], &mut tau);
+            for j in 0..p.n {
+                let mut row = vec![0.0; dim];
+                let c = p.known_gain[i * p.n + j] + p.gain[j].dot(&u[i]);
+                for q in 0..packages {
+                    let part = clocks[q].expect("clocked").age_partials(p.t_s[i]);
+                    let f = if q == p.package_of[j] { 1.0 } else { 0.0 } - 1.0 / packages as f64;
+                    for a in 0..3 {
+                        row[3 * q + a] = c * f * part[a];
+                    }
+                }
+                for e in 0..6 {
+                    row[nc + 6 * i + e] = tau[p.package_of[j]] * p.gain[j][e];
+                }
+                for a in 0..dim {
+                    for b in 0..dim {
+                        normal[(a, b)] += p.weights[j] * row[a] * row[b];
+                    }
+                }
+            }
+        }
+        let n_cc = normal.view((0, 0), (nc, nc)).into_owned();
+        let n_cu = normal.view((0, nc), (nc, dim - nc)).into_owned();
+        let n_uu = normal.view((nc, nc), (dim - nc, dim - nc)).into_owned();
+        let want = &n_cc - &n_cu * n_uu.cholesky().expect("every sample's motion is solved").solve(&n_cu.transpose());
+        let scale = want.abs().max();
+        let got_sym = DMatrix::from_fn(nc, nc, |a, b| got[(a.min(b), a.max(b))]);
+        let diff = (&got_sym - &want).abs().max();
+        assert!(diff <= 1e-9 * scale, "largest difference {diff:e} against {scale:e}");
+        let held_minus = &n_cc - &want;
+        let smallest = held_minus.symmetric_eigenvalues().min();
+        assert!(smallest >= -1e-9 * scale, "N_cc - information has eigenvalue {smallest:e}");
+        assert!(held_minus.abs().max() > 1e-3 * scale, "eliminating the motion changes the information");
+    }
+}
