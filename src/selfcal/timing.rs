@@ -515,19 +515,7 @@ impl ClockProblem {
         let (_, u) = self.cost(clocks, rows.clone());
         let (h, g) = self.relative_normal(clocks, rows, &u, true);
         let (inv, _) = crate::stats::symmetric_pinv(&h, 1e-12);
-        let step = &inv * &g;
-        let mut k = 0;
-        let moved = clocks
-            .iter()
-            .map(|c| {
-                c.map(|c| {
-                    let d = [step[3 * k], step[3 * k + 1], step[3 * k + 2]];
-                    k += 1;
-                    c.moved(d)
-                })
-            })
-            .collect();
-        (moved, h)
+        (stepped(clocks, &(&inv * &g), 1.0), h)
     }
 
     /// Gauss-Newton steps on the clocks' relative part over `rows` (the timing motion held at
@@ -551,17 +539,7 @@ impl ClockProblem {
             let mut scale = 1.0;
             let mut moved = false;
             for _ in 0..6 {
-                let mut k = 0;
-                let trial: Vec<Option<SampleClock>> = current
-                    .iter()
-                    .map(|c| {
-                        c.map(|c| {
-                            let d = [scale * step[3 * k], scale * step[3 * k + 1], scale * step[3 * k + 2]];
-                            k += 1;
-                            c.moved(d)
-                        })
-                    })
-                    .collect();
+                let trial = stepped(&current, &step, scale);
                 let (after, u_after) = self.cost(&trial, rows.clone());
                 if after < cost {
                     (current, cost, u, moved) = (trial, after, u_after, true);
@@ -660,8 +638,7 @@ impl ClockProblem {
                     // residual is orthogonal to its columns). Where `sample_fit` leaves the motion
                     // at zero (`timing_solve` refuses `m`) nothing is eliminated.
                     if let Some(chol) = timing_solve(&m).filter(|_| project) {
-                        let y = DMatrix::from_fn(6, dim, |_, _| 0.0);
-                        let mut y = y;
+                        let mut y = DMatrix::<f64>::zeros(6, dim);
                         for col in 0..dim {
                             let v = chol.solve(&Vector6::from_fn(|e, _| cross[(e, col)]));
                             for e in 0..6 {
@@ -691,6 +668,21 @@ impl ClockProblem {
         }
         (h, g)
     }
+}
+
+/// The clocked packages moved by `scale` times `step` (three entries a clocked package, in order).
+fn stepped(clocks: &[Option<SampleClock>], step: &DVector<f64>, scale: f64) -> Vec<Option<SampleClock>> {
+    let mut k = 0;
+    clocks
+        .iter()
+        .map(|c| {
+            c.map(|c| {
+                let d = [scale * step[3 * k], scale * step[3 * k + 1], scale * step[3 * k + 2]];
+                k += 1;
+                c.moved(d)
+            })
+        })
+        .collect()
 }
 
 /// The Cholesky factor of a sample's timing-motion normal matrix `h`, where the motion is
