@@ -11,6 +11,7 @@ use super::dynamics::{Linearisation, LinearisationError, linearise};
 use super::nonlinearity::{Probe, SIGMA_POINT, index, navigate_probes, pair_index, principal_direction};
 use super::norm::{GaussNorm, ScaleMixture, turned_axes};
 use super::sources::{Calibration, calibration_with, nominal_errors, nominal_parameters, reference, truths};
+use super::stacked::StackedBlocks;
 use crate::calib::params::PER_ACCEL;
 use crate::config::calibration::Estimator;
 use crate::mc::Cell;
@@ -346,6 +347,9 @@ fn random_rotation(seed: u64, m: usize) -> Rotation3<f64> {
 struct Context<'a> {
     cell: &'a Cell,
     blocks: Vec<Vec<Block>>,
+    /// The blocks stacked for a mixture's truths (horizon-major, metric-minor), where the
+    /// parameters are whole accelerometers.
+    stacked: Option<StackedBlocks>,
     horizons_s: &'a [f64],
     seed: u64,
     settings: &'a Settings,
@@ -430,8 +434,8 @@ impl Context<'_> {
     }
 
     /// One part per (horizon, metric) block.
-    fn per_block<T>(&self, part: impl Fn(&Block) -> T) -> Vec<Vec<T>> {
-        self.blocks.iter().map(|hb| hb.iter().map(&part).collect()).collect()
+    fn per_block<T>(&self, mut part: impl FnMut(&Block) -> T) -> Vec<Vec<T>> {
+        self.blocks.iter().map(|hb| hb.iter().map(&mut part).collect()).collect()
     }
 
     /// One part and its shares per (horizon, metric) block, in two tables.
@@ -598,10 +602,21 @@ impl Context<'_> {
                         }
                         sum.add(&cal, weight);
                         let pc = ParamCov { cov: &cal.covariance, block_diagonal: perfect };
-                        let parts = self.per_block(|b| Part {
-                            cov: propagate_cov(&b.s, &pc) + self.noise_var * b.noise_unit,
-                            mean: Vector3::zeros(),
-                            unbounded_by: reached_by(&b.s, &cal.null, &target, layout),
+                        // Every block's S C S^T at once where C is block-diagonal (the same bits).
+                        let stacked =
+                            self.stacked.as_ref().filter(|_| perfect).map(|st| st.covariances(&cal.covariance));
+                        let mut index = 0;
+                        let parts = self.per_block(|b| {
+                            let cov = match &stacked {
+                                Some(covs) => covs[index],
+                                None => propagate_cov(&b.s, &pc),
+                            };
+                            index += 1;
+                            Part {
+                                cov: cov + self.noise_var * b.noise_unit,
+                                mean: Vector3::zeros(),
+                                unbounded_by: reached_by(&b.s, &cal.null, &target, layout),
+                            }
                         });
                         Some((parts, weight))
                     })
@@ -955,11 +970,14 @@ pub fn analyse_cell(
     let nav = &cell.navigation;
     let horizons = lin.horizons_s.len();
     let density = cell.noise.white.density_m_s2_per_sqrt_hz();
+    let blocks: Vec<Vec<Block>> = (0..horizons)
+        .map(|h| (0..4).map(|m| Block { s: lin.block(h, m), noise_unit: lin.noise_block(h, m) }).collect())
+        .collect();
+    let stacked = StackedBlocks::new(&blocks.iter().flatten().map(|b| &b.s).collect::<Vec<_>>());
     let ctx = Context {
         cell,
-        blocks: (0..horizons)
-            .map(|h| (0..4).map(|m| Block { s: lin.block(h, m), noise_unit: lin.noise_block(h, m) }).collect())
-            .collect(),
+        blocks,
+        stacked,
         horizons_s: &lin.horizons_s,
         seed,
         settings,

@@ -99,3 +99,4 @@ pub mod output;
 pub mod ranking;
 pub mod run;
 pub mod sources;
+pub mod stacked;
