@@ -19,7 +19,9 @@ use super::recording::Recording;
 use super::robust::robust_covariance;
 use super::segment::{DetectorSettings, Interval, Segmentation, segment};
 use super::tension::{StaticTension, tension_at};
-use super::timing::{ClockEstimate, ClockProblem, SigmaCheck, TIMING_UNKNOWNS_PER_SAMPLE, gyro_offsets, host_dt_s};
+use super::timing::{
+    ClockEstimate, ClockProblem, SigmaCheck, TIMING_UNKNOWNS_PER_SAMPLE, gyro_offsets, host_dt_s, sawtooth_periods,
+};
 use crate::array::wiring::RecordingArray;
 
 /// Settings of a calibration.
@@ -347,10 +349,23 @@ fn estimate_clocks(
         let weights: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
         ClockProblem::new(&sens, d, &fit.motion, &weights, &package_of)
     };
+    // A package whose sawtooth does not complete a period in the rotation phase keeps the
+    // gyroscopes' start under the joint steps (blocked by the other packages' wraps; the
+    // gyroscopes' own fit, whose sawtooth scale is free, trades that package's rate with its drift
+    // along the one ramp): it is refined alone after them, its misfit smooth with the others held.
+    let refine_alone = |problem: &ClockProblem, mut clocks: Vec<Option<SampleClock>>| {
+        for p in 0..clocks.len() {
+            if clocks[p].is_some_and(|c| sawtooth_periods(&c, &d.t_s, dt) < 1.0) {
+                clocks = problem.package_steps(&clocks, all.clone(), p, 8).0;
+            }
+        }
+        clocks
+    };
     let mut fitted_to = d.clone();
     for outer in 0..iterations {
         let problem = problem_at(&fit);
         clocks = problem.relative_steps(&clocks, all.clone(), 3).0;
+        clocks = refine_alone(&problem, clocks);
         let timing = problem.timing(&clocks);
         let corrected = DynamicData {
             outputs: problem.corrected(&d.outputs, &clocks, &timing),
@@ -381,6 +396,7 @@ fn estimate_clocks(
     // over its sigma (the Birge ratio) inflates every sigma where it exceeds 1.
     let problem = problem_at(&fit);
     clocks = problem.relative_steps(&clocks, all.clone(), 1).0;
+    clocks = refine_alone(&problem, clocks);
     let normal = problem.relative_information(&clocks, all.clone());
     let timing = problem.timing(&clocks);
     let split = d.t_s.partition_point(|&t| t < t_ref_s);

@@ -554,6 +554,50 @@ impl ClockProblem {
         (current, cost)
     }
 
+    /// Gauss-Newton steps over `rows` on one clocked package's `(rate_offset, drift, phase)`
+    /// alone, every other clock held (each step from that package's block of the normal matrix
+    /// with the timing motion eliminated, halved until the misfit falls). Meant for a package
+    /// whose sawtooth completes less than a period over `rows` ([`sawtooth_periods`]): none of
+    /// its samples crosses a wrap and the others' wraps stay put, so its misfit is smooth where
+    /// the joint steps of [`ClockProblem::relative_steps`] meet the others' staircase. Returns the
+    /// clocks and the misfit.
+    pub fn package_steps(
+        &self,
+        clocks: &[Option<SampleClock>],
+        rows: Range<usize>,
+        package: usize,
+        steps: usize,
+    ) -> (Vec<Option<SampleClock>>, f64) {
+        let mut current = clocks.to_vec();
+        let (mut cost, mut u) = self.cost(&current, rows.clone());
+        let Some(c) = (0..current.len()).filter(|&p| current[p].is_some()).position(|p| p == package) else {
+            return (current, cost);
+        };
+        for _ in 0..steps {
+            let (h, g) = self.relative_normal(&current, rows.clone(), &u, true);
+            let block = h.view((3 * c, 3 * c), (3, 3)).into_owned();
+            let Some(chol) = block.cholesky() else { break };
+            let own = chol.solve(&g.rows(3 * c, 3).into_owned());
+            let mut step = DVector::zeros(g.len());
+            step.rows_mut(3 * c, 3).copy_from(&own);
+            let mut scale = 1.0;
+            let mut moved = false;
+            for _ in 0..6 {
+                let trial = stepped(&current, &step, scale);
+                let (after, u_after) = self.cost(&trial, rows.clone());
+                if after < cost {
+                    (current, cost, u, moved) = (trial, after, u_after, true);
+                    break;
+                }
+                scale *= 0.5;
+            }
+            if !moved {
+                break;
+            }
+        }
+        (current, cost)
+    }
+
     /// The information over `rows` on the clocked packages' `(rate_offset, drift, phase)` at
     /// `clocks`: the normal matrix with each sample's timing motion eliminated (it is refitted at
     /// every clock), whose pseudo-inverse is the relative part's covariance.
@@ -668,6 +712,20 @@ impl ClockProblem {
         }
         (h, g)
     }
+}
+
+/// How many of its periods `clock`'s sawtooth sweeps through when read at the host's samples
+/// `t_s` (host step `host_dt_s`): the range over the samples of its ticks less the whole ticks
+/// of the host steps, `n(t) - round(f0 dt) (t - t_0) / dt` (drift included). Below 1 the
+/// sawtooth does not complete a period: at most one of its wraps falls among the samples.
+pub fn sawtooth_periods(clock: &SampleClock, t_s: &[f64], host_dt_s: f64) -> f64 {
+    let Some(&t0) = t_s.first() else { return 0.0 };
+    let whole = (clock.nominal_hz * host_dt_s).round();
+    let (lo, hi) = t_s.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| {
+        let x = clock.ticks(t) - whole * (t - t0) / host_dt_s;
+        (lo.min(x), hi.max(x))
+    });
+    (hi - lo).max(0.0)
 }
 
 /// The clocked packages moved by `scale` times `step` (three entries a clocked package, in order).
@@ -825,5 +883,39 @@ mod information_tests {
         let smallest = held_minus.symmetric_eigenvalues().min();
         assert!(smallest >= -1e-9 * scale, "N_cc - information has eigenvalue {smallest:e}");
         assert!(held_minus.abs().max() > 1e-3 * scale, "eliminating the motion changes the information");
+    }
+}
+
+#[cfg(test)]
+mod period_tests {
+    use super::sawtooth_periods;
+    use crate::selfcal::clock::SampleClock;
+
+    /// Closed forms: a clock `eps` off a 1 kHz nominal read every 16 ms sweeps `16 eps` of a
+    /// period a sample, so `f0 eps T` periods over `T` seconds (drift adds `f0 drift T^2 / 8`
+    /// each side of the middle); the count does not depend on the phase, and agrees with the
+    /// wraps counted in the ages read at the samples.
+    #[test]
+    fn the_periods_swept_are_f0_eps_t_and_match_the_wraps_counted() {
+        let t_s: Vec<f64> = (0..6250).map(|k| 3.0 + k as f64 * 0.016).collect();
+        let span = t_s[t_s.len() - 1] - t_s[0];
+        for (eps, phase_s) in [(3.7e-6, 0.0), (3.7e-6, 0.9e-3), (-37.5e-6, 0.4e-3), (1120.4e-6, 0.1e-3)] {
+            let clock = SampleClock { nominal_hz: 1000.0, rate_offset: eps, drift_per_s: 0.0, phase_s, t_ref_s: 53.0 };
+            let periods = sawtooth_periods(&clock, &t_s, 0.016);
+            let expected = 1000.0 * eps.abs() * span;
+            assert!((periods - expected).abs() < 1e-6 * expected.max(1.0), "eps {eps}: {periods} vs {expected}");
+            // the ages' wraps: a step of more than half a period
+            let ages: Vec<f64> = t_s.iter().map(|&t| clock.age_s(t)).collect();
+            let wraps = ages.windows(2).filter(|w| (w[1] - w[0]).abs() > 0.5e-3).count() as f64;
+            assert!((wraps - expected).abs() <= 1.0, "eps {eps}: {wraps} wraps, {expected} periods");
+        }
+        // A drift that turns the sawtooth round in the middle: 1.6e-7 /s over +-50 s with no rate
+        // offset sweeps 1000 * 1.6e-7 * 50^2 / 2 = 0.2 of a period each side, the same way.
+        let middle = 0.5 * (t_s[0] + t_s[t_s.len() - 1]);
+        let turning =
+            SampleClock { nominal_hz: 1000.0, rate_offset: 0.0, drift_per_s: 1.6e-7, phase_s: 0.0, t_ref_s: middle };
+        let periods = sawtooth_periods(&turning, &t_s, 0.016);
+        let half = 0.5 * span;
+        assert!((periods - 1000.0 * 0.5 * 1.6e-7 * half * half).abs() < 1e-6, "{periods}");
     }
 }
