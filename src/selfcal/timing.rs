@@ -536,22 +536,31 @@ impl ClockProblem {
             let (h, g) = self.relative_normal(&current, rows.clone(), &u, false);
             let (inv, _) = crate::stats::symmetric_pinv(&h, 1e-12);
             let step = &inv * &g;
-            let mut scale = 1.0;
-            let mut moved = false;
-            for _ in 0..6 {
-                let trial = stepped(&current, &step, scale);
-                let (after, u_after) = self.cost(&trial, rows.clone());
-                if after < cost {
-                    (current, cost, u, moved) = (trial, after, u_after, true);
-                    break;
-                }
-                scale *= 0.5;
-            }
-            if !moved {
-                break;
-            }
+            let Some(moved) = self.halving_search(&current, &step, rows.clone(), cost) else { break };
+            (current, cost, u) = moved;
         }
         (current, cost)
+    }
+
+    /// `current` moved by `step`, halved up to 6 times until the misfit over `rows` falls below
+    /// `cost`: the clocks, their misfit and their timing motion (`None`: no fall).
+    fn halving_search(
+        &self,
+        current: &[Option<SampleClock>],
+        step: &DVector<f64>,
+        rows: Range<usize>,
+        cost: f64,
+    ) -> Option<Moved> {
+        let mut scale = 1.0;
+        for _ in 0..6 {
+            let trial = stepped(current, step, scale);
+            let (after, u_after) = self.cost(&trial, rows.clone());
+            if after < cost {
+                return Some((trial, after, u_after));
+            }
+            scale *= 0.5;
+        }
+        None
     }
 
     /// Gauss-Newton steps over `rows` on one clocked package's `(rate_offset, drift, phase)`
@@ -580,20 +589,8 @@ impl ClockProblem {
             let own = chol.solve(&g.rows(3 * c, 3).into_owned());
             let mut step = DVector::zeros(g.len());
             step.rows_mut(3 * c, 3).copy_from(&own);
-            let mut scale = 1.0;
-            let mut moved = false;
-            for _ in 0..6 {
-                let trial = stepped(&current, &step, scale);
-                let (after, u_after) = self.cost(&trial, rows.clone());
-                if after < cost {
-                    (current, cost, u, moved) = (trial, after, u_after, true);
-                    break;
-                }
-                scale *= 0.5;
-            }
-            if !moved {
-                break;
-            }
+            let Some(moved) = self.halving_search(&current, &step, rows.clone(), cost) else { break };
+            (current, cost, u) = moved;
         }
         (current, cost)
     }
@@ -727,6 +724,9 @@ pub fn sawtooth_periods(clock: &SampleClock, t_s: &[f64], host_dt_s: f64) -> f64
     });
     (hi - lo).max(0.0)
 }
+
+/// Clocks after an accepted step: the clocks, their misfit and their timing motion per row.
+type Moved = (Vec<Option<SampleClock>>, f64, Vec<Vector6<f64>>);
 
 /// The clocked packages moved by `scale` times `step` (three entries a clocked package, in order).
 fn stepped(clocks: &[Option<SampleClock>], step: &DVector<f64>, scale: f64) -> Vec<Option<SampleClock>> {
