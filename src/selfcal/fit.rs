@@ -25,13 +25,14 @@
 
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord, clippy::useless_vec)]
 
-use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3};
+use nalgebra::{DMatrix, DVector, Vector3};
 use rayon::prelude::*;
 
 use super::data::{DynamicData, StaticData};
 use super::misfit;
-use super::model::{Gauge, PER_ACCEL, SampleMotion, Sensor, SensorSet, sensors};
+use super::model::{Gauge, PER_ACCEL, SampleMotion, SensorSet, sensors};
 use super::motion::{self, SampleData};
+use super::schur::{self, LowerBlocks, SampleScratch, mirror_upper_blocks};
 use super::tension;
 use super::track;
 use super::unseen::{Combination, NULL_RELATIVE, Unseen, unseen};
@@ -580,34 +581,28 @@ fn normal_equations_with(
         }
     }
     if let Some(d) = dynamic {
-        let fixed = d.reference_rate_rad_s.is_some();
+        let samples = schur::Samples {
+            sens: &sens,
+            data: d,
+            motion: &state.motion,
+            weights: &w.dynamic_w,
+            fixed: d.reference_rate_rad_s.is_some(),
+            rate_curvature,
+        };
         let chunk = 256;
-        let parts: Vec<(DMatrix<f64>, DVector<f64>)> = (0..d.samples().div_ceil(chunk))
+        let parts: Vec<(LowerBlocks, DVector<f64>)> = (0..d.samples().div_ceil(chunk))
             .into_par_iter()
             .map(|c| {
-                let mut ha = DMatrix::zeros(na, na);
+                let mut ha = LowerBlocks::zeros(n);
                 let mut ga = DVector::zeros(na);
                 let mut scratch = SampleScratch::default();
-                for i in c * chunk..((c + 1) * chunk).min(d.samples()) {
-                    accumulate_sample(
-                        &sens,
-                        d,
-                        i,
-                        &state.motion[i],
-                        &w.dynamic_w,
-                        fixed,
-                        rate_curvature,
-                        Some(&mut ha),
-                        &mut ga,
-                        &mut scratch,
-                    );
-                }
+                let range = c * chunk..((c + 1) * chunk).min(d.samples());
+                schur::accumulate_samples(&samples, range, Some(&mut ha), &mut ga, &mut scratch);
                 (ha, ga)
             })
             .collect();
         for (ha, ga) in parts {
-            let mut hv = h.view_mut((0, 0), (na, na));
-            hv += &ha;
+            ha.add_to(&mut h);
             let mut gv = g.rows_mut(0, na);
             gv += &ga;
         }
@@ -622,147 +617,6 @@ fn normal_equations_with(
     }
     Normal { h, g }
 }
-
-/// Adds one dynamic sample's contribution to the reduced normal equations of the accelerometer
-/// parameters.
-///
-/// The sample's Schur complement `M^T Hll^+ M` is rank 9 but dense over every accelerometer's
-/// parameters. Each output depends on its own accelerometer's parameters only, so column
-/// `(j, a)` of `M` is `w_j dg_j[a] dl_j`, and the update is `P_jk dg_j dg_k^T` for every pair of
-/// accelerometers with `P_jk = w_j w_k dl_j^T Hll^+ dl_k`: 7 x 7 blocks instead of a dense
-/// `7 N x 7 N` product. Without `h` only the reduced gradient is added (the scores of
-/// `selfcal::robust`).
-#[allow(clippy::too_many_arguments)]
-pub(super) fn accumulate_sample(
-    sens: &[Sensor],
-    d: &DynamicData,
-    i: usize,
-    m: &SampleMotion,
-    weights: &[f64],
-    fixed: bool,
-    rate_curvature: bool,
-    mut h: Option<&mut DMatrix<f64>>,
-    g: &mut DVector<f64>,
-    scratch: &mut SampleScratch,
-) {
-    let n = sens.len();
-    let mut hll = SMatrix::<f64, 9, 9>::zeros();
-    let mut gl = SVector9::zeros();
-    scratch.wdl.clear();
-    scratch.dg.clear();
-    scratch.index.clear();
-    let with_curvature = rate_curvature && !fixed;
-    let mut curvature = Matrix3::zeros();
-    for (j, s) in sens.iter().enumerate() {
-        if !d.used[i * n + j] {
-            continue;
-        }
-        let q = m.specific_force_m_s2(&s.position_m);
-        let r = d.outputs[(i, j)] - s.output(&q);
-        let wt = weights[j];
-        if with_curvature {
-            curvature += motion::rate_curvature(s, wt * r);
-        }
-        let mut dl = SVector9::from(s.d_motion(m));
-        if fixed {
-            for k in 6..9 {
-                dl[k] = 0.0;
-            }
-        }
-        let d4 = s.d_intrinsic(&q);
-        let dloc = s.d_location(m);
-        let dg = [d4[0], d4[1], d4[2], d4[3], dloc.x, dloc.y, dloc.z];
-        hll.ger(wt, &dl, &dl, 1.0);
-        gl.axpy(wt * r, &dl, 1.0);
-        let base = PER_ACCEL * j;
-        for a in 0..PER_ACCEL {
-            g[base + a] += wt * dg[a] * r;
-        }
-        if let Some(h) = h.as_deref_mut() {
-            // Column by column (the storage's order); each element once, as `wt dg_a dg_b`.
-            for b in 0..PER_ACCEL {
-                let column = &mut h.column_mut(base + b);
-                let column = &mut column.as_mut_slice()[base..base + PER_ACCEL];
-                for (a, v) in column.iter_mut().enumerate() {
-                    *v += wt * dg[a] * dg[b];
-                }
-            }
-        }
-        scratch.wdl.push(dl * wt);
-        scratch.dg.push(dg);
-        scratch.index.push(j);
-    }
-    if fixed {
-        for k in 6..9 {
-            hll[(k, k)] = 1.0;
-        }
-    } else if with_curvature {
-        // The rate's block with the residual's curvature, as the sample's motion is solved
-        // (`motion::solve`): at a low rate the Gauss-Newton block alone lets the rate absorb a
-        // share of a parameter step that no re-solved motion can (`motion::solve`'s docs).
-        let block = hll.fixed_view::<3, 3>(6, 6).into_owned();
-        if let (Some(newton), _) = motion::newton_rate_block(&block, &curvature) {
-            hll.fixed_view_mut::<3, 3>(6, 6).copy_from(&newton);
-        }
-    }
-    // H -= M^T Hll^+ M; g -= M^T Hll^+ g_l (a pseudo-inverse where the sample does not fix its
-    // whole motion: at zero rate the centripetal terms, and with them the rate, vanish).
-    let inv = motion::information_inverse(&hll);
-    let y = inv * gl;
-    let m_used = scratch.index.len();
-    for a in 0..m_used {
-        let base_a = PER_ACCEL * scratch.index[a];
-        let ga = scratch.wdl[a].dot(&y);
-        let dga = scratch.dg[a];
-        for p in 0..PER_ACCEL {
-            g[base_a + p] -= dga[p] * ga;
-        }
-        let Some(h) = h.as_deref_mut() else { continue };
-        let ya = inv * scratch.wdl[a];
-        // The blocks on and below the diagonal (`b <= a`, the used outputs in increasing order);
-        // the caller mirrors the others ([`mirror_upper_blocks`]).
-        for b in 0..=a {
-            let pab = ya.dot(&scratch.wdl[b]);
-            let base_b = PER_ACCEL * scratch.index[b];
-            let dgb = scratch.dg[b];
-            let f: [f64; PER_ACCEL] = std::array::from_fn(|p| pab * dga[p]);
-            // Column by column (the storage's order); each element once, as `(pab dga_p) dgb_q`.
-            for (q, dq) in dgb.iter().enumerate() {
-                let column = &mut h.column_mut(base_b + q);
-                let column = &mut column.as_mut_slice()[base_a..base_a + PER_ACCEL];
-                for (v, fp) in column.iter_mut().zip(&f) {
-                    *v -= fp * dq;
-                }
-            }
-        }
-    }
-}
-
-/// The accelerometers' blocks above the diagonal of the normal matrix set to the mirror of those
-/// below it ([`accumulate_sample`] adds the dynamic samples' Schur updates to the blocks on and
-/// below the diagonal only: the update is symmetric, and half the pairs cost half the time).
-fn mirror_upper_blocks(h: &mut DMatrix<f64>, accelerometers: usize) {
-    for a in 0..accelerometers {
-        for b in a + 1..accelerometers {
-            for p in 0..PER_ACCEL {
-                for q in 0..PER_ACCEL {
-                    h[(PER_ACCEL * a + p, PER_ACCEL * b + q)] = h[(PER_ACCEL * b + q, PER_ACCEL * a + p)];
-                }
-            }
-        }
-    }
-}
-
-/// Per-sample buffers of [`accumulate_sample`], reused across the samples of a chunk.
-#[derive(Default)]
-pub(super) struct SampleScratch {
-    /// `w_j dl_j` of every used output.
-    wdl: Vec<SVector9>,
-    dg: Vec<[f64; PER_ACCEL]>,
-    index: Vec<usize>,
-}
-
-type SVector9 = nalgebra::SVector<f64, 9>;
 
 /// The gauge's rows and the unseen combinations' rows, with the values that hold them: zero for
 /// the gauge, the current value for an unseen combination.

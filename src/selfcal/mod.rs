@@ -31,6 +31,7 @@ pub mod predict;
 pub mod recording;
 pub mod robust;
 pub mod sampling;
+mod schur;
 pub mod segment;
 pub mod simulate;
 pub mod tension;

@@ -18,11 +18,9 @@ use nalgebra::DMatrix;
 use rayon::prelude::*;
 
 use super::data::{DynamicData, StaticData};
-use super::fit::{
-    Fit, FitError, FitSettings, SampleScratch, State, Weights, accumulate_sample, constrained_inverse,
-    normal_equations, pinned,
-};
+use super::fit::{Fit, FitError, FitSettings, State, Weights, constrained_inverse, normal_equations, pinned};
 use super::model::{PER_ACCEL, sensors};
+use super::schur::{self, SampleScratch};
 use super::unseen::unseen;
 use crate::array::Array;
 
@@ -63,27 +61,22 @@ pub fn robust_covariance(
     // The dynamic scores, block by block (each block's sum in order: the same bits on any
     // number of threads).
     let sens = sensors(array, &fit.params);
-    let fixed = dynamic.reference_rate_rad_s.is_some();
+    let samples = schur::Samples {
+        sens: &sens,
+        data: dynamic,
+        motion: &fit.motion,
+        weights: &weights.dynamic_w,
+        fixed: dynamic.reference_rate_rad_s.is_some(),
+        rate_curvature: false,
+    };
     let blocks = dynamic.samples().div_ceil(BLOCK_SAMPLES);
     let scores: Vec<nalgebra::DVector<f64>> = (0..blocks)
         .into_par_iter()
         .map(|b| {
             let mut g = nalgebra::DVector::zeros(na);
             let mut scratch = SampleScratch::default();
-            for i in b * BLOCK_SAMPLES..((b + 1) * BLOCK_SAMPLES).min(dynamic.samples()) {
-                accumulate_sample(
-                    &sens,
-                    dynamic,
-                    i,
-                    &fit.motion[i],
-                    &weights.dynamic_w,
-                    fixed,
-                    false,
-                    None,
-                    &mut g,
-                    &mut scratch,
-                );
-            }
+            let range = b * BLOCK_SAMPLES..((b + 1) * BLOCK_SAMPLES).min(dynamic.samples());
+            schur::accumulate_samples(&samples, range, None, &mut g, &mut scratch);
             g
         })
         .collect();

@@ -1,0 +1,258 @@
+//! One rotation-phase sample's share of the joint fit's reduced normal equations: the sample's
+//! motion eliminated by the Schur complement, leaving the accelerometer parameters' blocks.
+//!
+//! The sample's Schur complement `M^T Hll^+ M` is rank 9 but dense over every accelerometer's
+//! parameters. Each output depends on its own accelerometer's parameters only, so column
+//! `(j, a)` of `M` is `w_j dg_j[a] dl_j`, and the update is `P_jk dg_j dg_k^T` for every pair of
+//! accelerometers with `P_jk = w_j w_k dl_j^T Hll^+ dl_k`: 7 x 7 blocks instead of a dense
+//! `7 N x 7 N` product. The update is symmetric, so only the blocks on and below the diagonal are
+//! summed ([`LowerBlocks`], packed one block after another so that a sample's 300 block updates
+//! run through memory in order); [`LowerBlocks::add_to`] adds them to the normal matrix and
+//! [`mirror_upper_blocks`] fills the blocks above the diagonal.
+//!
+//! Every element is summed in the same order, by the same operations, whatever the layout or the
+//! instruction set (no fused multiply-add), so the normal matrix is the same to the bit on any
+//! processor and any number of threads.
+
+#![allow(clippy::needless_range_loop)]
+
+use nalgebra::{DMatrix, DVector, Matrix3, SMatrix};
+
+use super::data::DynamicData;
+use super::model::{PER_ACCEL, SampleMotion, Sensor};
+use super::motion;
+
+/// Rows of a packed block: the block's 7 rows and one of padding, so that each column starts on
+/// a multiple of four values (two 256-bit lanes a column).
+const ROWS: usize = 8;
+/// Values of a packed block: `PER_ACCEL` columns of [`ROWS`].
+const BLOCK: usize = ROWS * PER_ACCEL;
+
+/// The accelerometer blocks on and below the diagonal of a chunk's reduced normal matrix, packed:
+/// block `(a, b)` with `b <= a` starts at `(a (a + 1) / 2 + b) BLOCK`, column `q` of it at
+/// `q ROWS`, and row `p` of that column is the matrix's element `(7 a + p, 7 b + q)`.
+pub(super) struct LowerBlocks {
+    accelerometers: usize,
+    values: Vec<f64>,
+}
+
+impl LowerBlocks {
+    pub(super) fn zeros(accelerometers: usize) -> Self {
+        let blocks = accelerometers * (accelerometers + 1) / 2;
+        Self { accelerometers, values: vec![0.0; blocks * BLOCK] }
+    }
+
+    fn offset(a: usize, b: usize) -> usize {
+        debug_assert!(b <= a);
+        (a * (a + 1) / 2 + b) * BLOCK
+    }
+
+    fn block_mut(&mut self, a: usize, b: usize) -> &mut [f64; BLOCK] {
+        let start = Self::offset(a, b);
+        let slice = &mut self.values[start..start + BLOCK];
+        slice.try_into().expect("a packed block holds BLOCK values")
+    }
+
+    /// Adds the blocks to those on and below the diagonal of the top-left `7 N x 7 N` corner of
+    /// `h`, element by element ([`mirror_upper_blocks`] then fills the others).
+    pub(super) fn add_to(&self, h: &mut DMatrix<f64>) {
+        let n = self.accelerometers;
+        for a in 0..n {
+            for b in 0..=a {
+                let block = &self.values[Self::offset(a, b)..Self::offset(a, b) + BLOCK];
+                for q in 0..PER_ACCEL {
+                    let column = &mut h.column_mut(PER_ACCEL * b + q);
+                    let column = &mut column.as_mut_slice()[PER_ACCEL * a..PER_ACCEL * (a + 1)];
+                    for (v, x) in column.iter_mut().zip(&block[q * ROWS..q * ROWS + PER_ACCEL]) {
+                        *v += x;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The accelerometers' blocks above the diagonal of the normal matrix set to the mirror of those
+/// below it.
+pub(super) fn mirror_upper_blocks(h: &mut DMatrix<f64>, accelerometers: usize) {
+    for a in 0..accelerometers {
+        for b in a + 1..accelerometers {
+            for p in 0..PER_ACCEL {
+                for q in 0..PER_ACCEL {
+                    h[(PER_ACCEL * a + p, PER_ACCEL * b + q)] = h[(PER_ACCEL * b + q, PER_ACCEL * a + p)];
+                }
+            }
+        }
+    }
+}
+
+/// What every sample of a run of samples shares in [`accumulate_samples`].
+pub(super) struct Samples<'a> {
+    pub sens: &'a [Sensor],
+    pub data: &'a DynamicData,
+    pub motion: &'a [SampleMotion],
+    pub weights: &'a [f64],
+    /// The rate is the reference gyroscopes' (6 motion unknowns a sample, not 9).
+    pub fixed: bool,
+    /// The rate blocks with the residual's curvature, as `motion::solve` solves the motion.
+    pub rate_curvature: bool,
+}
+
+/// [`accumulate_sample`] over samples `range`, in order.
+pub(super) fn accumulate_samples(
+    samples: &Samples,
+    range: std::ops::Range<usize>,
+    blocks: Option<&mut LowerBlocks>,
+    g: &mut DVector<f64>,
+    scratch: &mut SampleScratch,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the processor has AVX, the only feature the copy is compiled for.
+        unsafe { accumulate_samples_avx(samples, range, blocks, g, scratch) };
+        return;
+    }
+    accumulate_samples_any(samples, range, blocks, g, scratch);
+}
+
+/// [`accumulate_samples_any`] compiled for AVX (four lanes; no fused multiply-add, so the same
+/// bits).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn accumulate_samples_avx(
+    samples: &Samples,
+    range: std::ops::Range<usize>,
+    blocks: Option<&mut LowerBlocks>,
+    g: &mut DVector<f64>,
+    scratch: &mut SampleScratch,
+) {
+    accumulate_samples_any(samples, range, blocks, g, scratch);
+}
+
+#[inline(always)]
+fn accumulate_samples_any(
+    samples: &Samples,
+    range: std::ops::Range<usize>,
+    mut blocks: Option<&mut LowerBlocks>,
+    g: &mut DVector<f64>,
+    scratch: &mut SampleScratch,
+) {
+    for i in range {
+        accumulate_sample(samples, i, blocks.as_deref_mut(), g, scratch);
+    }
+}
+
+/// Adds sample `i`'s contribution to the reduced normal equations of the accelerometer
+/// parameters (the module's docs). Without `blocks` only the reduced gradient is added (the
+/// scores of `selfcal::robust`).
+#[inline(always)]
+fn accumulate_sample(
+    samples: &Samples,
+    i: usize,
+    mut blocks: Option<&mut LowerBlocks>,
+    g: &mut DVector<f64>,
+    scratch: &mut SampleScratch,
+) {
+    let Samples { sens, data: d, motion: motions, weights, fixed, rate_curvature } = *samples;
+    let m = &motions[i];
+    let n = sens.len();
+    let mut hll = SMatrix::<f64, 9, 9>::zeros();
+    let mut gl = SVector9::zeros();
+    scratch.wdl.clear();
+    scratch.dg.clear();
+    scratch.index.clear();
+    let with_curvature = rate_curvature && !fixed;
+    let mut curvature = Matrix3::zeros();
+    for (j, s) in sens.iter().enumerate() {
+        if !d.used[i * n + j] {
+            continue;
+        }
+        let q = m.specific_force_m_s2(&s.position_m);
+        let r = d.outputs[(i, j)] - s.output(&q);
+        let wt = weights[j];
+        if with_curvature {
+            curvature += motion::rate_curvature(s, wt * r);
+        }
+        let mut dl = SVector9::from(s.d_motion(m));
+        if fixed {
+            for k in 6..9 {
+                dl[k] = 0.0;
+            }
+        }
+        let d4 = s.d_intrinsic(&q);
+        let dloc = s.d_location(m);
+        let dg = [d4[0], d4[1], d4[2], d4[3], dloc.x, dloc.y, dloc.z];
+        hll.ger(wt, &dl, &dl, 1.0);
+        gl.axpy(wt * r, &dl, 1.0);
+        let base = PER_ACCEL * j;
+        for a in 0..PER_ACCEL {
+            g[base + a] += wt * dg[a] * r;
+        }
+        if let Some(blocks) = blocks.as_deref_mut() {
+            // Each element once, as `wt dg_a dg_b`.
+            let block = blocks.block_mut(j, j);
+            for b in 0..PER_ACCEL {
+                for a in 0..PER_ACCEL {
+                    block[b * ROWS + a] += wt * dg[a] * dg[b];
+                }
+            }
+        }
+        scratch.wdl.push(dl * wt);
+        scratch.dg.push(dg);
+        scratch.index.push(j);
+    }
+    if fixed {
+        for k in 6..9 {
+            hll[(k, k)] = 1.0;
+        }
+    } else if with_curvature {
+        // The rate's block with the residual's curvature, as the sample's motion is solved
+        // (`motion::solve`): at a low rate the Gauss-Newton block alone lets the rate absorb a
+        // share of a parameter step that no re-solved motion can (`motion::solve`'s docs).
+        let block = hll.fixed_view::<3, 3>(6, 6).into_owned();
+        if let (Some(newton), _) = motion::newton_rate_block(&block, &curvature) {
+            hll.fixed_view_mut::<3, 3>(6, 6).copy_from(&newton);
+        }
+    }
+    // H -= M^T Hll^+ M; g -= M^T Hll^+ g_l (a pseudo-inverse where the sample does not fix its
+    // whole motion: at zero rate the centripetal terms, and with them the rate, vanish).
+    let inv = motion::information_inverse(&hll);
+    let y = inv * gl;
+    let m_used = scratch.index.len();
+    for a in 0..m_used {
+        let base_a = PER_ACCEL * scratch.index[a];
+        let ga = scratch.wdl[a].dot(&y);
+        let dga = scratch.dg[a];
+        for p in 0..PER_ACCEL {
+            g[base_a + p] -= dga[p] * ga;
+        }
+        let Some(blocks) = blocks.as_deref_mut() else { continue };
+        let ya = inv * scratch.wdl[a];
+        // The blocks on and below the diagonal (`b <= a`, the used outputs in increasing order).
+        for b in 0..=a {
+            let pab = ya.dot(&scratch.wdl[b]);
+            let dgb = scratch.dg[b];
+            // The padding row's factor is 0: it stays 0 and is never read.
+            let f: [f64; ROWS] = std::array::from_fn(|p| if p < PER_ACCEL { pab * dga[p] } else { 0.0 });
+            let block = blocks.block_mut(scratch.index[a], scratch.index[b]);
+            // Each element once, as `(pab dga_p) dgb_q`.
+            for (q, dq) in dgb.iter().enumerate() {
+                let column = &mut block[q * ROWS..(q + 1) * ROWS];
+                for (v, fp) in column.iter_mut().zip(&f) {
+                    *v -= fp * dq;
+                }
+            }
+        }
+    }
+}
+
+/// Per-sample buffers of [`accumulate_samples`], reused across the samples of a chunk.
+#[derive(Default)]
+pub(super) struct SampleScratch {
+    /// `w_j dl_j` of every used output.
+    wdl: Vec<SVector9>,
+    dg: Vec<[f64; PER_ACCEL]>,
+    index: Vec<usize>,
+}
+
+type SVector9 = nalgebra::SVector<f64, 9>;
