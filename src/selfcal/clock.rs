@@ -173,18 +173,25 @@ pub fn search(
     let m_hi = (nu_of(max_rate_offset) * len as f64).ceil() as i64;
     const HARMONICS: i64 = 6;
     const PHASES: usize = 64;
+    // exp(2 pi i h phi) for every phase and harmonic, the same at every frequency.
+    let rotations: Vec<[Complex<f64>; HARMONICS as usize]> = (0..PHASES)
+        .map(|p| {
+            let phi = p as f64 / PHASES as f64;
+            std::array::from_fn(|h| Complex::from_polar(1.0, 2.0 * std::f64::consts::PI * (h + 1) as f64 * phi))
+        })
+        .collect();
     let mut best = (f64::NEG_INFINITY, 0i64, 0.0);
     for m in m_lo..=m_hi {
-        let s: Vec<Complex<f64>> = (1..=HARMONICS).map(|h| s_at(h * m)).collect();
-        for p in 0..PHASES {
+        let s: [Complex<f64>; HARMONICS as usize] = std::array::from_fn(|h| s_at((h as i64 + 1) * m));
+        for (p, rotation) in rotations.iter().enumerate() {
             let phi = p as f64 / PHASES as f64;
             // correlation with frac(nu k + phi) - 1/2 = -sum_h sin(2 pi h (nu k + phi)) / (pi h)
             let c: f64 = s
                 .iter()
+                .zip(rotation)
                 .enumerate()
-                .map(|(h, sh)| {
+                .map(|(h, (sh, rot))| {
                     let h = (h + 1) as f64;
-                    let rot = Complex::from_polar(1.0, 2.0 * std::f64::consts::PI * h * phi);
                     -(rot * sh).im / (std::f64::consts::PI * h)
                 })
                 .sum();

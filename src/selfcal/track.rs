@@ -21,7 +21,7 @@
 //!
 //! Keeping the lower misfit makes a needless re-solve harmless.
 
-use nalgebra::{DVector, SMatrix, Vector3};
+use nalgebra::{DMatrix, DVector, SMatrix, Vector3};
 use rayon::prelude::*;
 
 use super::data::DynamicData;
@@ -179,6 +179,32 @@ fn run_of_sample(d: &DynamicData) -> Vec<usize> {
     v
 }
 
+/// `cov u_c` for the three vectors at once, in one pass over `cov`: each element summed as a
+/// matrix-vector product sums it (`cov[i, 0] u[0]`, then `+ cov[i, k] u[k]` in column order), so
+/// the same bits as three products, for a third of the reads of `cov`.
+fn covariance_times(cov: &DMatrix<f64>, u: &[DVector<f64>; 3]) -> [DVector<f64>; 3] {
+    let n = cov.nrows();
+    let mut out: [DVector<f64>; 3] = std::array::from_fn(|_| DVector::zeros(n));
+    for k in 0..cov.ncols() {
+        let column = cov.column(k);
+        let column = column.as_slice();
+        for (o, u) in out.iter_mut().zip(u) {
+            let x = u[k];
+            let o = o.as_mut_slice();
+            if k == 0 {
+                for (o, a) in o.iter_mut().zip(column) {
+                    *o = a * x;
+                }
+            } else {
+                for (o, a) in o.iter_mut().zip(column) {
+                    *o += a * x;
+                }
+            }
+        }
+    }
+    out
+}
+
 /// Sigma of every sample's rate (per axis): the sample's own noise (`Hll^-1`) and the
 /// uncertainty of the accelerometer parameters carried into it,
 /// `Y + Y M Sigma_x M^T Y` with `Y = Hll^-1`, `M` the sample's motion-parameter information and
@@ -218,8 +244,7 @@ pub fn rate_sigmas(
                 parts.push((j, dl * dynamic_w[j], [d4[0], d4[1], d4[2], d4[3], dloc.x, dloc.y, dloc.z]));
             }
             let y = motion::information_inverse(&hll);
-            let mut out = Vector3::zeros();
-            for c in 0..3 {
+            let u: [DVector<f64>; 3] = std::array::from_fn(|c| {
                 let row = y.row(6 + c);
                 // Column (j, a) of (Y M)[6 + c, :] is (row . w_j dl_j) dg_j[a].
                 let mut u = DVector::zeros(na);
@@ -229,10 +254,10 @@ pub fn rate_sigmas(
                         u[PER_ACCEL * j + a] = f * g;
                     }
                 }
-                let carried = (&cov * &u).dot(&u);
-                out[c] = (y[(6 + c, 6 + c)] + carried.max(0.0)).sqrt();
-            }
-            out
+                u
+            });
+            let cov_u = covariance_times(&cov, &u);
+            Vector3::from_fn(|c, _| (y[(6 + c, 6 + c)] + cov_u[c].dot(&u[c]).max(0.0)).sqrt())
         })
         .collect()
 }
