@@ -322,8 +322,19 @@ impl ClockProblem {
             let w = self.weights[j];
             let d = self.gain[j] * tau;
             let r = self.residual[base + j] + tau * self.known_gain[base + j];
-            h += d * d.transpose() * w;
+            // `h += d d^T w` on and below the diagonal, each element as `(d_r d_c) w`.
+            for c in 0..6 {
+                for r in c..6 {
+                    h[(r, c)] += d[r] * d[c] * w;
+                }
+            }
             b -= d * (w * r);
+        }
+        // The upper triangle: `(d_c d_r) w` is `(d_r d_c) w` to the bit.
+        for c in 1..6 {
+            for r in 0..c {
+                h[(r, c)] = h[(c, r)];
+            }
         }
         let u = timing_solve(&h).map(|c| c.solve(&b)).unwrap_or_else(Vector6::zeros);
         let mut cost = 0.0;
