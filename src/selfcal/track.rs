@@ -183,26 +183,46 @@ fn run_of_sample(d: &DynamicData) -> Vec<usize> {
 /// matrix-vector product sums it (`cov[i, 0] u[0]`, then `+ cov[i, k] u[k]` in column order), so
 /// the same bits as three products, for a third of the reads of `cov`.
 fn covariance_times(cov: &DMatrix<f64>, u: &[DVector<f64>; 3]) -> [DVector<f64>; 3] {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the processor has AVX, the only feature the copy is compiled for.
+        return unsafe { covariance_times_avx(cov, u) };
+    }
+    covariance_times_any(cov, u)
+}
+
+/// [`covariance_times_any`] compiled for AVX (no fused multiply-add, so the same bits).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn covariance_times_avx(cov: &DMatrix<f64>, u: &[DVector<f64>; 3]) -> [DVector<f64>; 3] {
+    covariance_times_any(cov, u)
+}
+
+#[inline(always)]
+fn covariance_times_any(cov: &DMatrix<f64>, u: &[DVector<f64>; 3]) -> [DVector<f64>; 3] {
     let n = cov.nrows();
-    let mut out: [DVector<f64>; 3] = std::array::from_fn(|_| DVector::zeros(n));
-    for k in 0..cov.ncols() {
-        let column = cov.column(k);
-        let column = column.as_slice();
-        for (o, u) in out.iter_mut().zip(u) {
-            let x = u[k];
-            let o = o.as_mut_slice();
-            if k == 0 {
-                for (o, a) in o.iter_mut().zip(column) {
-                    *o = a * x;
-                }
-            } else {
-                for (o, a) in o.iter_mut().zip(column) {
-                    *o += a * x;
-                }
+    if n == 0 {
+        return std::array::from_fn(|_| DVector::zeros(0));
+    }
+    let (mut o0, mut o1, mut o2) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    for (k, column) in cov.as_slice().chunks_exact(n).enumerate() {
+        let (x0, x1, x2) = (u[0][k], u[1][k], u[2][k]);
+        let rows = column.iter().zip(o0.iter_mut().zip(o1.iter_mut().zip(o2.iter_mut())));
+        if k == 0 {
+            for (a, (o0, (o1, o2))) in rows {
+                *o0 = a * x0;
+                *o1 = a * x1;
+                *o2 = a * x2;
+            }
+        } else {
+            for (a, (o0, (o1, o2))) in rows {
+                *o0 += a * x0;
+                *o1 += a * x1;
+                *o2 += a * x2;
             }
         }
     }
-    out
+    [DVector::from_vec(o0), DVector::from_vec(o1), DVector::from_vec(o2)]
 }
 
 /// Sigma of every sample's rate (per axis): the sample's own noise (`Hll^-1`) and the
