@@ -256,3 +256,166 @@ pub(super) struct SampleScratch {
 }
 
 type SVector9 = nalgebra::SVector<f64, 9>;
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{DMatrix, DVector, SMatrix, Vector3};
+
+    use super::*;
+
+    /// Eight packages of three tilted axes at the corners of a 20 x 20 x 2 mm board, with scale
+    /// factors and biases off their nominal values.
+    fn board() -> Vec<Sensor> {
+        let mut out = Vec::new();
+        for (p, &(x, y, z)) in [(1.0, 1.0, 1.0), (-1.0, 1.0, -1.0), (-1.0, -1.0, 1.0), (1.0, -1.0, -1.0)]
+            .iter()
+            .flat_map(|c| [c, c])
+            .enumerate()
+        {
+            let side = if p % 2 == 0 { 1.0 } else { -1.0 };
+            let position_m = Vector3::new(0.01 * x * side, 0.01 * y, 0.001 * z * side);
+            for (e, axis) in [Vector3::x(), Vector3::y(), Vector3::z()].into_iter().enumerate() {
+                let j = (3 * p + e) as f64;
+                let axis = (axis + Vector3::new(0.01 * (j * 0.7).sin(), 0.01 * (j * 1.3).cos(), 0.005)).normalize();
+                let daxis = [axis.cross(&Vector3::new(0.3, 1.0, 0.2)), axis.cross(&Vector3::new(1.0, -0.4, 0.1))];
+                let (k, b_m_s2) = (1.0 + 1e-3 * (j * 0.9).sin(), 0.05 * (j * 0.4).cos());
+                out.push(Sensor { k, b_m_s2, axis, daxis, position_m });
+            }
+        }
+        out
+    }
+
+    /// Three samples of outputs off any rigid motion (so the residuals are not zero), one output
+    /// clipped, and their motions.
+    fn recording(n: usize) -> (DynamicData, Vec<SampleMotion>) {
+        let samples = 3;
+        let outputs = DMatrix::from_fn(samples, n, |i, j| 4.0 * ((i * n + j) as f64 * 0.37).sin() + 2.0);
+        let mut used = vec![true; samples * n];
+        used[n + 4] = false;
+        let data = DynamicData {
+            t_s: vec![0.0, 0.016, 0.032],
+            outputs,
+            used,
+            run_starts: vec![0],
+            reference_rate_rad_s: None,
+            extra_unknowns_per_sample: 0,
+        };
+        let motion = (0..samples)
+            .map(|i| {
+                let s = i as f64;
+                SampleMotion {
+                    f_m_s2: Vector3::new(1.0 + s, -2.0, 9.0 - s),
+                    alpha_rad_s2: Vector3::new(40.0, 10.0 * s, -25.0),
+                    omega_rad_s: Vector3::new(12.0 - 3.0 * s, -4.0, 7.0 + s),
+                }
+            })
+            .collect();
+        (data, motion)
+    }
+
+    /// The reduced normal matrix and gradient written out densely: `H = D^T W D - M^T Hll^-1 M`,
+    /// `g = D^T W r - M^T Hll^-1 L^T W r`, with `D` every output's parameter gradients (7 per
+    /// accelerometer), `L` its motion gradients (the rate's columns zero when `fixed`, and the
+    /// rate's block of `Hll` then the identity) and `M = L^T W D`.
+    fn dense(samples: &Samples) -> (DMatrix<f64>, DVector<f64>) {
+        let n = samples.sens.len();
+        let na = PER_ACCEL * n;
+        let (mut h, mut g) = (DMatrix::zeros(na, na), DVector::zeros(na));
+        for (i, m) in samples.motion.iter().enumerate() {
+            let rows: Vec<usize> = (0..n).filter(|&j| samples.data.used[i * n + j]).collect();
+            let mut d = DMatrix::zeros(rows.len(), na);
+            let mut l = DMatrix::zeros(rows.len(), 9);
+            let mut w = DMatrix::zeros(rows.len(), rows.len());
+            let mut r = DVector::zeros(rows.len());
+            for (row, &j) in rows.iter().enumerate() {
+                let s = &samples.sens[j];
+                let q = m.specific_force_m_s2(&s.position_m);
+                let d4 = s.d_intrinsic(&q);
+                let dloc = s.d_location(m);
+                for (a, v) in [d4[0], d4[1], d4[2], d4[3], dloc.x, dloc.y, dloc.z].into_iter().enumerate() {
+                    d[(row, PER_ACCEL * j + a)] = v;
+                }
+                let dl = s.d_motion(m);
+                for k in 0..if samples.fixed { 6 } else { 9 } {
+                    l[(row, k)] = dl[k];
+                }
+                w[(row, row)] = samples.weights[j];
+                r[row] = samples.data.outputs[(i, j)] - s.output(&q);
+            }
+            let mut hll: SMatrix<f64, 9, 9> = SMatrix::from_iterator((l.transpose() * &w * &l).iter().copied());
+            if samples.fixed {
+                for k in 6..9 {
+                    hll[(k, k)] = 1.0;
+                }
+            }
+            let inv = DMatrix::from_iterator(9, 9, hll.try_inverse().expect("the motion is resolved").iter().copied());
+            let mm = l.transpose() * &w * &d;
+            h += d.transpose() * &w * &d - mm.transpose() * &inv * &mm;
+            g += d.transpose() * &w * &r - mm.transpose() * &inv * (l.transpose() * &w * &r);
+        }
+        (h, g)
+    }
+
+    fn packed(samples: &Samples, portable: bool) -> (DMatrix<f64>, DVector<f64>) {
+        let n = samples.sens.len();
+        let mut blocks = LowerBlocks::zeros(n);
+        let mut g = DVector::zeros(PER_ACCEL * n);
+        let mut scratch = SampleScratch::default();
+        let range = 0..samples.motion.len();
+        if portable {
+            accumulate_samples_any(samples, range, Some(&mut blocks), &mut g, &mut scratch);
+        } else {
+            accumulate_samples(samples, range, Some(&mut blocks), &mut g, &mut scratch);
+        }
+        let mut h = DMatrix::zeros(PER_ACCEL * n, PER_ACCEL * n);
+        blocks.add_to(&mut h);
+        mirror_upper_blocks(&mut h, n);
+        (h, g)
+    }
+
+    /// The packed blocks, added and mirrored, against the Schur complement written out densely,
+    /// with the rate free and with it given; and the gradient alone (no blocks) the same.
+    #[test]
+    fn the_packed_update_is_the_dense_schur_complement() {
+        let sens = board();
+        let (data, motion) = recording(sens.len());
+        let weights: Vec<f64> = (0..sens.len()).map(|j| 1e3 * (1.0 + 0.1 * j as f64)).collect();
+        for fixed in [false, true] {
+            let samples =
+                Samples { sens: &sens, data: &data, motion: &motion, weights: &weights, fixed, rate_curvature: false };
+            let (h, g) = packed(&samples, false);
+            let (h_dense, g_dense) = dense(&samples);
+            let scale = h_dense.amax();
+            assert!((&h - &h_dense).amax() < 1e-9 * scale, "fixed {fixed}: {:e} of {scale:e}", (&h - &h_dense).amax());
+            assert!((&g - &g_dense).amax() < 1e-9 * g_dense.amax(), "fixed {fixed}");
+            let mut g_alone = DVector::zeros(PER_ACCEL * sens.len());
+            accumulate_samples(&samples, 0..motion.len(), None, &mut g_alone, &mut SampleScratch::default());
+            assert_eq!(g_alone, g);
+        }
+    }
+
+    /// The copy compiled for AVX gives the portable copy's bits (no fused multiply-add), with the
+    /// rate's curvature in the elimination as the fit's steps use it.
+    #[test]
+    fn the_avx_copy_gives_the_portable_bits() {
+        let sens = board();
+        let (data, motion) = recording(sens.len());
+        let weights: Vec<f64> = (0..sens.len()).map(|j| 1e3 * (1.0 + 0.1 * j as f64)).collect();
+        let samples = Samples {
+            sens: &sens,
+            data: &data,
+            motion: &motion,
+            weights: &weights,
+            fixed: false,
+            rate_curvature: true,
+        };
+        let (h_any, g_any) = packed(&samples, true);
+        let (h, g) = packed(&samples, false);
+        let bits = |m: &DMatrix<f64>| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&h), bits(&h_any));
+        assert_eq!(
+            g.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            g_any.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
+    }
+}
