@@ -183,23 +183,6 @@ fn run_of_sample(d: &DynamicData) -> Vec<usize> {
 /// matrix-vector product sums it (`cov[i, 0] u[0]`, then `+ cov[i, k] u[k]` in column order), so
 /// the same bits as three products, for a third of the reads of `cov`.
 fn covariance_times(cov: &DMatrix<f64>, u: &[DVector<f64>; 3]) -> [DVector<f64>; 3] {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx") {
-        // SAFETY: the processor has AVX, the only feature the copy is compiled for.
-        return unsafe { covariance_times_avx(cov, u) };
-    }
-    covariance_times_any(cov, u)
-}
-
-/// [`covariance_times_any`] compiled for AVX (no fused multiply-add, so the same bits).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-fn covariance_times_avx(cov: &DMatrix<f64>, u: &[DVector<f64>; 3]) -> [DVector<f64>; 3] {
-    covariance_times_any(cov, u)
-}
-
-#[inline(always)]
-fn covariance_times_any(cov: &DMatrix<f64>, u: &[DVector<f64>; 3]) -> [DVector<f64>; 3] {
     let n = cov.nrows();
     if n == 0 {
         return std::array::from_fn(|_| DVector::zeros(0));
