@@ -40,6 +40,10 @@ pub struct Package {
     /// The host reads the latest internal sample (its age is 0 to one clock period) rather than
     /// one synchronised to the host's sample instant.
     pub sample_and_hold: bool,
+    /// Time constant of a first-order anti-alias filter before the package's accelerometers'
+    /// internal sampling, s (0: none declared). Its second-order term is modelled in a
+    /// calibration (`selfcal::filter`).
+    pub anti_alias_time_constant_s: f64,
 }
 
 impl Package {

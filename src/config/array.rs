@@ -46,6 +46,7 @@
 //! name = "imu1"
 //! sample_clock_hz = 1000.0
 //! sample_and_hold = true
+//! anti_alias_time_constant_ms = 2.0   # optional: a first-order filter before its accelerometers
 //! [[accelerometer]]
 //! package = "imu1"
 //! # ...
@@ -57,6 +58,10 @@
 use std::path::Path;
 
 use serde::Deserialize;
+
+/// The largest anti-alias time constant an array file may declare, ms: the filter's term is
+/// modelled to second order in it (`selfcal::filter`), which longer filters would break.
+pub const MAX_ANTI_ALIAS_MS: f64 = 10.0;
 
 use super::{Bad, ConfigError, positive, read_toml};
 use crate::array::wiring::{DEFAULT_TIME_COLUMN, Package, RecordingArray, ReferenceGyro};
@@ -96,6 +101,9 @@ pub struct PackageEntry {
     /// The host reads the latest internal sample (default false: synchronised).
     #[serde(default)]
     pub sample_and_hold: bool,
+    /// Time constant of a first-order anti-alias filter before the package's accelerometers'
+    /// sampling, ms (default: none).
+    pub anti_alias_time_constant_ms: Option<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -257,7 +265,23 @@ fn packages(
             )
             .in_file(path));
         }
-        packages.push(Package { name: p.name.clone(), sample_clock_hz, sample_and_hold: p.sample_and_hold });
+        let anti_alias_time_constant_s = match p.anti_alias_time_constant_ms {
+            Some(ms) if ms.is_finite() && (0.0..=MAX_ANTI_ALIAS_MS).contains(&ms) => ms * 1e-3,
+            Some(ms) => {
+                return Err(Bad::new(
+                    format!("package[{i}].anti_alias_time_constant_ms"),
+                    format!("{ms} is not a time constant from 0 to {MAX_ANTI_ALIAS_MS} ms"),
+                )
+                .in_file(path));
+            }
+            None => 0.0,
+        };
+        packages.push(Package {
+            name: p.name.clone(),
+            sample_clock_hz,
+            sample_and_hold: p.sample_and_hold,
+            anti_alias_time_constant_s,
+        });
     }
     let declared = !packages.is_empty();
     let mut find = |key: String, name: &Option<String>, what: String| -> Result<Option<usize>, ConfigError> {
@@ -276,7 +300,12 @@ fn packages(
             )
             .in_file(path));
         }
-        packages.push(Package { name: name.clone(), sample_clock_hz: None, sample_and_hold: false });
+        packages.push(Package {
+            name: name.clone(),
+            sample_clock_hz: None,
+            sample_and_hold: false,
+            anti_alias_time_constant_s: 0.0,
+        });
         Ok(Some(packages.len() - 1))
     };
     let mut package_of = Vec::new();

@@ -21,6 +21,7 @@ pub mod assessment;
 pub mod calibrate;
 pub mod clock;
 pub mod data;
+pub mod filter;
 pub mod fit;
 pub mod geometry;
 pub mod misfit;

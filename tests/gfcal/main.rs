@@ -1,5 +1,6 @@
 //! Integration tests of gfcal, one module per domain.
 
+mod anti_alias;
 mod calibrate_cli;
 mod calibration;
 mod cli;
