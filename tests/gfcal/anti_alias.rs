@@ -81,5 +81,14 @@ fn an_array_files_filter_is_read_and_a_bad_one_refused_naming_file_and_key() {
         let message = result.expect_err(bad).to_string();
         assert!(message.contains("package[0].anti_alias_time_constant_ms"), "{bad}: {message}");
         assert!(message.contains(&path.display().to_string()), "{bad}: {message}");
+        // The command line refuses it with exit 2 and the same words.
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_gfcal"))
+            .arg("check")
+            .arg(&path)
+            .output()
+            .expect("gfcal runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{bad}: {stderr}");
+        assert!(stderr.contains("package[0].anti_alias_time_constant_ms"), "{bad}: {stderr}");
     }
 }
