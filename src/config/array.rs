@@ -59,13 +59,13 @@ use std::path::Path;
 
 use serde::Deserialize;
 
-/// The largest anti-alias time constant an array file may declare, ms: the filter's term is
-/// modelled to second order in it (`selfcal::filter`), which longer filters would break.
-pub const MAX_ANTI_ALIAS_MS: f64 = 10.0;
-
 use super::{Bad, ConfigError, positive, read_toml};
 use crate::array::wiring::{DEFAULT_TIME_COLUMN, Package, RecordingArray, ReferenceGyro};
 use crate::array::{Array, ArrayError};
+
+/// The largest anti-alias time constant an array file may declare, ms: the filter's term is
+/// modelled to second order in it (`selfcal::filter`), which longer filters would break.
+pub const MAX_ANTI_ALIAS_MS: f64 = 10.0;
 
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]

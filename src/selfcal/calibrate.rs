@@ -175,9 +175,11 @@ pub fn calibrate(
         None => (fit, None, None),
     };
     // Without the clocks' refits, the anti-alias filters' term gets refits of its own.
-    let fit = match (dynamic, &clocks, accelerometer_time_constants(array)) {
-        (Some(d), None, Some(tau)) => refit_with_filters(array, &stat, d, &settings.fit, fit, &tau)
-            .map_err(|source| CalibrateError::Fit { path: rec.path.clone(), source })?,
+    let fit = match (dynamic, &clocks) {
+        (Some(d), None) if accelerometer_time_constants(array).is_some() => {
+            refit_with_filters(array, &stat, d, &settings.fit, fit)
+                .map_err(|source| CalibrateError::Fit { path: rec.path.clone(), source })?
+        }
         _ => fit,
     };
     let gyro_check = match (gyro_bias_rad_s, settings.use_gyro, fit.motion.is_empty()) {
@@ -273,11 +275,9 @@ fn refit_with_filters(
     d: &DynamicData,
     settings: &FitSettings,
     mut fit: Fit,
-    tau_s: &[f64],
 ) -> Result<Fit, FitError> {
     for _ in 0..2 {
-        let outputs = filter_corrected(&d.outputs, &sensors(&array.array, &fit.params), &fit.motion, tau_s);
-        let corrected = DynamicData { outputs, ..d.clone() };
+        let corrected = DynamicData { outputs: with_filters(array, &fit, d.outputs.clone()), ..d.clone() };
         fit = fit_from(&array.array, stat, Some(&corrected), settings, Some(&fit))?;
     }
     Ok(fit)
