@@ -12,7 +12,9 @@
 //!   recording: 71 against 2.06 alone); without one the two are the same fit.
 //! - **Dynamic phase**: every sample that is not clipped, weighted by `1 / sigma_d,j^2`, where
 //!   `sigma_d,j` is re-estimated from the dynamic residuals (a variance component per
-//!   accelerometer: a phase whose model is worse weighs less).
+//!   accelerometer: a phase whose model is worse weighs less; one for the whole phase, floored at
+//!   each accelerometer's static noise, where the sample clocks' timing term spends unknowns of
+//!   its own on every sample: [`pooled_dynamic_variance`]).
 //! - The motion (9 unknowns a sample; 6 with a reference rate) is eliminated sample by sample by
 //!   the Schur complement, so each Gauss-Newton step solves only for the `7 N + 2 P` parameters.
 //! - The gauge (`selfcal::model::Gauge`) is fixed by linear constraints in the step's KKT system;
@@ -44,11 +46,15 @@ use crate::sensor::misalignment::tilt_basis;
 pub struct FitSettings {
     pub gravity_m_s2: f64,
     pub max_iterations: usize,
+    /// One dynamic variance for the whole rotation phase instead of one per accelerometer
+    /// ([`pooled_dynamic_variance`]); always so where the data spend unknowns of their own on
+    /// each sample.
+    pub pooled_dynamic_variance: bool,
 }
 
 impl Default for FitSettings {
     fn default() -> Self {
-        Self { gravity_m_s2: crate::units::STANDARD_GRAVITY_M_S2, max_iterations: 50 }
+        Self { gravity_m_s2: crate::units::STANDARD_GRAVITY_M_S2, max_iterations: 50, pooled_dynamic_variance: false }
     }
 }
 
@@ -160,6 +166,26 @@ pub(super) struct Normal {
 pub(super) struct Weights {
     pub(super) static_w: DMatrix<f64>,
     pub(super) dynamic_w: Vec<f64>,
+}
+
+/// The rotation phase's one dynamic variance, m^2/s^4: `sum_j c_j r_j^2 / sum_j c_j / L_j`, the
+/// residuals' sum of squares over the phase's degrees of freedom (`selfcal::misfit`); `None`
+/// where it cannot be formed. Used where [`FitSettings::pooled_dynamic_variance`] asks for it or
+/// the data spend unknowns of their own on every sample (the sample clocks' timing term).
+///
+/// Why pooled there. A component per accelerometer, `r_j^2 L_j`, takes the leverage of equal
+/// weights. With 12-15 local unknowns among a sample's 24 outputs, an accelerometer weighted
+/// above the rest takes a larger share of its samples' local fit than `L_j` allows for: its
+/// residual shrinks, its variance with it, and its weight grows at the next refit. The sample
+/// clocks' outer iterations ran that away on every real recording (residuals of single
+/// accelerometers down to 0.001 m/s^2, a thirtieth of their static noise, and a misfit that rose
+/// with each iteration: `docs/sample-clocks.md`). One variance keeps the weights equal (above the
+/// static floors), where the equal-weights leverage is the redundancy the estimate needs. With 9
+/// or 6 local unknowns the per-accelerometer components do not run away.
+fn pooled_dynamic_variance(d: &DynamicData, rms: &[f64], counts: &[usize], local: f64) -> Option<f64> {
+    let sum_sq: f64 = rms.iter().zip(counts).filter(|(r, _)| r.is_finite()).map(|(r, &c)| r * r * c as f64).sum();
+    let dof = misfit::dof(d, local);
+    (dof > 0.0 && sum_sq.is_finite()).then_some(sum_sq / dof)
 }
 
 /// Fits the model to a recording's static and (optional) dynamic phase.
@@ -287,11 +313,15 @@ pub fn fit_from(
         weights.static_w =
             DMatrix::from_fn(poses, n, |p, j| stat.counts[p] as f64 / (stat.sigma[j].powi(2) * static_factor));
         if let Some(d) = dynamic.filter(|_| with_dynamic) {
-            let (rms, _) = misfit::residual_rms(array, &state.params, d, &state.motion);
+            let (rms, counts) = misfit::residual_rms(array, &state.params, d, &state.motion);
             let local = misfit::local_unknowns(d);
+            let pool = settings.pooled_dynamic_variance || d.extra_unknowns_per_sample > 0;
+            let pooled = pool.then(|| pooled_dynamic_variance(d, &rms, &counts, local)).flatten();
             for j in 0..n {
-                let leverage = misfit::leverage(d, j, local);
-                let var = rms[j].powi(2) * leverage;
+                let var = match pooled {
+                    Some(v) => v,
+                    None => rms[j].powi(2) * misfit::leverage(d, j, local),
+                };
                 let var = var.max(stat.sigma[j].powi(2));
                 let w = 1.0 / var;
                 changed |= (w / weights.dynamic_w[j] - 1.0).abs() > 0.01;
