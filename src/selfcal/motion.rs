@@ -373,11 +373,18 @@ pub fn orient_run(t_s: &[f64], motion: &mut [SampleMotion]) {
     }
 }
 
+/// A diagonal of a sample's motion information below this share of its largest is a direction
+/// the sample does not observe. The rate's at a rate that collapsed to zero: a simulated sample's
+/// fitted rate reached 1e-161 rad/s, whose diagonal (about 1e-322) scaled the rest by 1e161 and
+/// gave the Schur complement infinities (`selfcal::fit`'s covariance then failed as singular).
+pub const UNOBSERVED_DIAGONAL: f64 = f64::EPSILON * f64::EPSILON;
+
 /// Inverse of one sample's motion information (the 9 x 9 normal matrix, [`information`]), or its pseudo-inverse when some motion direction
-/// is not observed (an exactly zero column, or an eigenvalue below `1e-12` of the largest after
-/// scaling by the diagonal).
+/// is not observed (a column whose diagonal is zero or below [`UNOBSERVED_DIAGONAL`] of the
+/// largest, or an eigenvalue below `1e-12` of the largest after scaling by the diagonal).
 pub fn information_inverse(hll: &SMatrix<f64, 9, 9>) -> SMatrix<f64, 9, 9> {
-    let d = hll.diagonal().map(|v| if v > 0.0 { 1.0 / v.sqrt() } else { 0.0 });
+    let largest = hll.diagonal().max();
+    let d = hll.diagonal().map(|v| if v > UNOBSERVED_DIAGONAL * largest { 1.0 / v.sqrt() } else { 0.0 });
     // `D X D` for the diagonal `D`, element by element: `(d_i x_ij) d_j`, the value the two
     // matrix products give (their other terms are exact zeros), without the products.
     let both_sides = |x: &SMatrix<f64, 9, 9>| SMatrix::<f64, 9, 9>::from_fn(|i, j| d[i] * x[(i, j)] * d[j]);
@@ -500,5 +507,29 @@ mod tests {
         assert!((m.alpha_rad_s2 - truth.alpha_rad_s2).norm() < 1e-3, "{:?}", m.alpha_rad_s2);
         assert!((m.f_m_s2 - truth.f_m_s2).norm() < 1e-5, "{:?}", m.f_m_s2);
         assert!(c < 1e-8, "{c}");
+    }
+
+    /// A rate collapsed to (almost) zero leaves the rate unobserved: the pseudo-inverse is finite
+    /// and is, on the specific force and angular acceleration, the inverse of their own block (at
+    /// exactly zero rate the rate's columns vanish, so the two blocks are uncoupled). At 1e-161
+    /// rad/s (a rate seen in a simulated calibration) the rate's diagonal is about 1e-322 and,
+    /// taken as observed, scaled the rest by 1e161 into infinities.
+    #[test]
+    fn a_rate_collapsed_to_zero_is_an_unobserved_direction() {
+        let sensors = board();
+        let used = vec![true; sensors.len()];
+        let weights = vec![1.0 / 0.04_f64.powi(2); sensors.len()];
+        let at = |w: f64| SampleMotion {
+            f_m_s2: Vector3::new(2.0, -1.0, 9.5),
+            alpha_rad_s2: Vector3::new(120.0, -80.0, 40.0),
+            omega_rad_s: Vector3::new(2.5, -5.5, 6.8) * w,
+        };
+        let zero = information(&sensors, &used, &weights, &at(0.0));
+        let exact = zero.fixed_view::<6, 6>(0, 0).into_owned().try_inverse().expect("f and alpha are observed");
+        let inv = information_inverse(&information(&sensors, &used, &weights, &at(1e-161)));
+        assert!(inv.iter().all(|v| v.is_finite()));
+        let block = inv.fixed_view::<6, 6>(0, 0).into_owned();
+        assert!((block - &exact).norm() <= 1e-9 * exact.norm(), "{block} against {exact}");
+        assert!(inv.fixed_view::<3, 9>(6, 0).norm() == 0.0);
     }
 }
