@@ -844,3 +844,49 @@ pub fn unseen_at(
     let constraints = gauge.constraints(array, with_dynamic, 2 * poses);
     (null, gauge, unseen(&normal.h, &constraints, &active))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::DMatrix;
+
+    /// White noise of one variance, left by least squares with `k` unknowns a sample among `m`
+    /// outputs, has residual RMS `sigma sqrt((m - k) / m)` on every accelerometer: the pooled
+    /// variance is `sigma^2`, whatever the counts. With unequal noise it is their mean variance
+    /// (equal counts), and with an accelerometer left out of every sample (NaN residual) the rest.
+    #[test]
+    fn the_pooled_dynamic_variance_of_white_residuals_is_the_noise_variance() {
+        let (samples, n) = (400, 24);
+        let mut d = DynamicData {
+            t_s: (0..samples).map(|i| i as f64 * 0.016).collect(),
+            outputs: DMatrix::zeros(samples, n),
+            used: vec![true; samples * n],
+            run_starts: vec![0],
+            reference_rate_rad_s: None,
+            extra_unknowns_per_sample: 6,
+        };
+        let local = misfit::local_unknowns(&d);
+        assert_eq!(local, 15.0);
+        let kept = ((n as f64 - local) / n as f64).sqrt();
+        let counts = vec![samples; n];
+        let rms = vec![0.3 * kept; n];
+        let v = pooled_dynamic_variance(&d, &rms, &counts, local).expect("formed");
+        assert!((v - 0.09).abs() < 1e-12 * 0.09, "{v}");
+        let sigma: Vec<f64> = (0..n).map(|j| 0.1 + 0.02 * j as f64).collect();
+        let rms: Vec<f64> = sigma.iter().map(|s| s * kept).collect();
+        let mean = sigma.iter().map(|s| s * s).sum::<f64>() / n as f64;
+        let v = pooled_dynamic_variance(&d, &rms, &counts, local).expect("formed");
+        assert!((v - mean).abs() < 1e-12 * mean, "{v} against {mean}");
+        // Accelerometer 0 never used: 23 outputs a sample, `k` unknowns among them.
+        for i in 0..samples {
+            d.used[i * n] = false;
+        }
+        let kept23 = ((23.0 - local) / 23.0).sqrt();
+        let mut rms: Vec<f64> = vec![0.3 * kept23; n];
+        rms[0] = f64::NAN;
+        let mut counts = counts;
+        counts[0] = 0;
+        let v = pooled_dynamic_variance(&d, &rms, &counts, local).expect("formed");
+        assert!((v - 0.09).abs() < 1e-12 * 0.09, "{v}");
+    }
+}
