@@ -212,7 +212,7 @@ fn covariance_times(cov: &DMatrix<f64>, u: &[DVector<f64>; 3]) -> [DVector<f64>;
 /// uncertainty of the accelerometer parameters carried into it,
 /// `Y + Y M Sigma_x M^T Y` with `Y = Hll^-1`, `M` the sample's motion-parameter information and
 /// `Sigma_x` the parameters' covariance in the gauge (the rate's estimate moves by `-Y M dx`).
-/// Zero where the rate is given (`fixed`).
+/// Zero where the rate is given (`fixed`); infinite on an axis a sample does not observe.
 pub fn rate_sigmas(
     array: &Array,
     d: &DynamicData,
@@ -260,7 +260,16 @@ pub fn rate_sigmas(
                 u
             });
             let cov_u = covariance_times(&cov, &u);
-            Vector3::from_fn(|c, _| (y[(6 + c, 6 + c)] + cov_u[c].dot(&u[c]).max(0.0)).sqrt())
+            // A rate axis the sample does not observe (its rate collapsed to zero: the
+            // pseudo-inverse leaves it out, `motion::information_inverse`) has no bound.
+            let largest = hll.diagonal().max();
+            Vector3::from_fn(|c, _| {
+                if hll[(6 + c, 6 + c)] > motion::UNOBSERVED_DIAGONAL * largest {
+                    (y[(6 + c, 6 + c)] + cov_u[c].dot(&u[c]).max(0.0)).sqrt()
+                } else {
+                    f64::INFINITY
+                }
+            })
         })
         .collect()
 }
