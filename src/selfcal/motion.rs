@@ -529,7 +529,7 @@ mod tests {
         let inv = information_inverse(&information(&sensors, &used, &weights, &at(1e-161)));
         assert!(inv.iter().all(|v| v.is_finite()));
         let block = inv.fixed_view::<6, 6>(0, 0).into_owned();
-        assert!((block - &exact).norm() <= 1e-9 * exact.norm(), "{block} against {exact}");
+        assert!((block - exact).norm() <= 1e-9 * exact.norm(), "{block} against {exact}");
         assert!(inv.fixed_view::<3, 9>(6, 0).norm() == 0.0);
     }
 }
