@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates the diagnosis of the six recordings (issue 11): each recording in turn is the fitting
 # one and the other five are held out; writes diagnose_K.json, diagnose_K.txt and the report
-# diagnose_K.html, then gaps.md (gaps.py). About two minutes with a release build.
+# diagnose_K.html, then gaps.md (gaps.py). About five minutes with a release build (2026-11-28, a slow machine).
 # With --use-gyro (run_gyro.sh): the rate from the gyroscopes, diagnose_gyro_K.json and .txt only.
 # With --no-clocks: the array file without its packages' sample clocks (written into no_clocks/ from
 # configs/arrays/mimu4444_corners.toml, the clock keys removed), the diagnoses into no_clocks/ (JSON and
