@@ -421,7 +421,8 @@ fn estimate_clocks(
             extra_unknowns_per_sample: TIMING_UNKNOWNS_PER_SAMPLE,
             ..d.clone()
         };
-        fit = fit_from(&array.array, stat, Some(&corrected), settings, Some(&fit)).map_err(ClockFailure::Fit)?;
+        let refit = FitSettings { rate_sigmas: false, ..*settings };
+        fit = fit_from(&array.array, stat, Some(&corrected), &refit, Some(&fit)).map_err(ClockFailure::Fit)?;
         fitted_to = corrected;
         let rms = dynamic_rms(&fit);
         let settled = (previous_rms - rms).abs() <= OUTER_TOLERANCE * previous_rms;

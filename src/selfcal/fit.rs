@@ -50,11 +50,19 @@ pub struct FitSettings {
     /// ([`pooled_dynamic_variance`]); always so where the data spend unknowns of their own on
     /// each sample.
     pub pooled_dynamic_variance: bool,
+    /// Compute every sample's rate sigma ([`Fit::omega_sigma_rad_s`]; left empty without). The
+    /// clocks' outer iterations skip it: their refits' sigmas are replaced after the last one.
+    pub rate_sigmas: bool,
 }
 
 impl Default for FitSettings {
     fn default() -> Self {
-        Self { gravity_m_s2: crate::units::STANDARD_GRAVITY_M_S2, max_iterations: 50, pooled_dynamic_variance: false }
+        Self {
+            gravity_m_s2: crate::units::STANDARD_GRAVITY_M_S2,
+            max_iterations: 50,
+            pooled_dynamic_variance: false,
+            rate_sigmas: true,
+        }
     }
 }
 
@@ -349,7 +357,7 @@ pub fn fit_from(
         }
     }
     let covariance = constrained_inverse(&normal.h, &all_constraints, &active, &seen.parameters, false)?;
-    let omega_sigma_rad_s = match dynamic.filter(|_| with_dynamic) {
+    let omega_sigma_rad_s = match dynamic.filter(|_| with_dynamic && settings.rate_sigmas) {
         Some(d) => {
             track::rate_sigmas(array, d, &weights.dynamic_w, &state.params, &state.motion, reference_rate, &covariance)
         }
