@@ -379,12 +379,19 @@ pub fn orient_run(t_s: &[f64], motion: &mut [SampleMotion]) {
 /// gave the Schur complement infinities (`selfcal::fit`'s covariance then failed as singular).
 pub const UNOBSERVED_DIAGONAL: f64 = f64::EPSILON * f64::EPSILON;
 
+/// Which of a sample's motion directions its information observes: a diagonal above
+/// [`UNOBSERVED_DIAGONAL`] of the largest.
+pub fn observed(hll: &SMatrix<f64, 9, 9>) -> [bool; 9] {
+    let largest = hll.diagonal().max();
+    std::array::from_fn(|k| hll[(k, k)] > UNOBSERVED_DIAGONAL * largest)
+}
+
 /// Inverse of one sample's motion information (the 9 x 9 normal matrix, [`information`]), or its pseudo-inverse when some motion direction
 /// is not observed (a column whose diagonal is zero or below [`UNOBSERVED_DIAGONAL`] of the
 /// largest, or an eigenvalue below `1e-12` of the largest after scaling by the diagonal).
 pub fn information_inverse(hll: &SMatrix<f64, 9, 9>) -> SMatrix<f64, 9, 9> {
-    let largest = hll.diagonal().max();
-    let d = hll.diagonal().map(|v| if v > UNOBSERVED_DIAGONAL * largest { 1.0 / v.sqrt() } else { 0.0 });
+    let seen = observed(hll);
+    let d = SVector::<f64, 9>::from_fn(|k, _| if seen[k] { 1.0 / hll[(k, k)].sqrt() } else { 0.0 });
     // `D X D` for the diagonal `D`, element by element: `(d_i x_ij) d_j`, the value the two
     // matrix products give (their other terms are exact zeros), without the products.
     let both_sides = |x: &SMatrix<f64, 9, 9>| SMatrix::<f64, 9, 9>::from_fn(|i, j| d[i] * x[(i, j)] * d[j]);

@@ -262,13 +262,9 @@ pub fn rate_sigmas(
             let cov_u = covariance_times(&cov, &u);
             // A rate axis the sample does not observe (its rate collapsed to zero: the
             // pseudo-inverse leaves it out, `motion::information_inverse`) has no bound.
-            let largest = hll.diagonal().max();
+            let seen = motion::observed(&hll);
             Vector3::from_fn(|c, _| {
-                if hll[(6 + c, 6 + c)] > motion::UNOBSERVED_DIAGONAL * largest {
-                    (y[(6 + c, 6 + c)] + cov_u[c].dot(&u[c]).max(0.0)).sqrt()
-                } else {
-                    f64::INFINITY
-                }
+                if seen[6 + c] { (y[(6 + c, 6 + c)] + cov_u[c].dot(&u[c]).max(0.0)).sqrt() } else { f64::INFINITY }
             })
         })
         .collect()
