@@ -24,6 +24,8 @@
 //! vibration_rms_m_s2 = 30.0             # broadband translational vibration, RMS (3 axes together)
 //! vibration_rate_rms_rad_s = 0.0        # broadband angular vibration, RMS
 //! vibration_rate_band_hz = [2.0, 15.0]  # its own band (default: vibration_band_hz)
+//! vibration_rate_low_pass_order = 3     # its low-pass: 2 (default) or 3 (a finite angular jerk)
+//! vibration_low_pass_order = 3          # the translation's: 2 (default) or 3 (less jerk above the band)
 //! vibration_band_hz = [2.0, 50.0]       # its band: 1st-order high-pass, 2nd-order Butterworth low-pass
 //! vibration_rate_exponent = 0.0         # its RMS goes as (|rate| / rate_rms_rad_s)^k (0: stationary)
 //! sample_clocks = true                  # packages with sample_clock_hz + sample_and_hold sample on their own clocks
@@ -57,6 +59,7 @@ use crate::selfcal::model::{PER_ACCEL, SensorSet};
 use crate::selfcal::sampling::{ClockSpread, Spread};
 use crate::selfcal::simulate::{AntiAlias, FINE_STEP_S, MOTION_BAND_HZ, VIBRATION_BAND_HZ, Vibration};
 use crate::selfcal::simulate::{Protocol, bound_at_truth, project_to_gauge, simulate};
+use crate::selfcal::vibration::LowPass;
 
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -78,6 +81,8 @@ pub struct ProtocolSection {
     pub vibration_band_hz: Option<[f64; 2]>,
     pub vibration_rate_exponent: Option<f64>,
     pub vibration_rate_band_hz: Option<[f64; 2]>,
+    pub vibration_rate_low_pass_order: Option<u32>,
+    pub vibration_low_pass_order: Option<u32>,
     #[serde(default)]
     pub sample_clocks: bool,
     pub clock_rate_offset_ppm: Option<ClockDist>,
@@ -176,6 +181,15 @@ fn band(key: &str, b: [f64; 2]) -> Result<[f64; 2], Bad> {
     Ok([lo, hi])
 }
 
+/// A vibration low-pass's order, 2 (the default, when absent) or 3.
+fn low_pass(key: &str, order: Option<u32>) -> Result<LowPass, Bad> {
+    match order {
+        None => Ok(LowPass::Second),
+        Some(o) => LowPass::from_order(o)
+            .ok_or_else(|| Bad::new(key, format!("must be 2 or 3 (the order of the vibration's low-pass), got {o}"))),
+    }
+}
+
 /// A non-negative finite value (0 when absent).
 fn non_negative(key: &str, v: Option<f64>) -> Result<f64, Bad> {
     let v = finite(key, v.unwrap_or(0.0))?;
@@ -257,6 +271,8 @@ impl ProtocolSection {
                 .vibration_rate_band_hz
                 .map(|b| band("protocol.vibration_rate_band_hz", b))
                 .transpose()?,
+            low_pass: low_pass("protocol.vibration_low_pass_order", self.vibration_low_pass_order)?,
+            rate_low_pass: low_pass("protocol.vibration_rate_low_pass_order", self.vibration_rate_low_pass_order)?,
             rate_exponent: non_negative("protocol.vibration_rate_exponent", self.vibration_rate_exponent)?,
         };
         if vibration.rate_exponent > 4.0 {
@@ -271,6 +287,7 @@ impl ProtocolSection {
         for (key, given) in [
             ("protocol.vibration_band_hz", self.vibration_band_hz.is_some()),
             ("protocol.vibration_rate_exponent", self.vibration_rate_exponent.is_some()),
+            ("protocol.vibration_low_pass_order", self.vibration_low_pass_order.is_some()),
         ] {
             if given && !vibration.is_on() {
                 return Err(Bad::new(
@@ -296,11 +313,13 @@ impl ProtocolSection {
                 ));
             }
         }
-        if self.vibration_rate_band_hz.is_some() && vibration.rate_rms_rad_s == 0.0 {
-            return Err(Bad::new(
-                "protocol.vibration_rate_band_hz",
-                "has no effect without protocol.vibration_rate_rms_rad_s above 0",
-            ));
+        for (key, given) in [
+            ("protocol.vibration_rate_band_hz", self.vibration_rate_band_hz.is_some()),
+            ("protocol.vibration_rate_low_pass_order", self.vibration_rate_low_pass_order.is_some()),
+        ] {
+            if given && vibration.rate_rms_rad_s == 0.0 {
+                return Err(Bad::new(key, "has no effect without protocol.vibration_rate_rms_rad_s above 0"));
+            }
         }
         let clocks = self.clocks(&array, rate)?;
         let accel_tau_ms = non_negative("protocol.anti_alias_time_constant_ms", self.anti_alias_time_constant_ms)?;

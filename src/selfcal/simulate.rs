@@ -24,7 +24,7 @@ use super::clock::SampleClock;
 use super::model::{SampleMotion, SensorSet};
 use super::recording::{Recording, RecordingError};
 use super::sampling::{ClockSpread, FirstOrder, draw_clocks, last_tick_s};
-use super::vibration::{BandNoise, Bank, Sample};
+use super::vibration::{BandNoise, Bank, LowPass, Sample};
 use crate::array::wiring::RecordingArray;
 use crate::io::table::Table;
 use crate::motion::RigidMotion;
@@ -99,6 +99,12 @@ pub struct Vibration {
     pub band_hz: [f64; 2],
     /// Corners of the angular vibration's band, Hz (`None`: `band_hz`).
     pub rate_band_hz: Option<[f64; 2]>,
+    /// The order of the translational vibration's low-pass ([`super::vibration`]): the third
+    /// takes the jerk's content above the corner down as `f^-4` (the second: `f^-2`).
+    pub low_pass: LowPass,
+    /// The order of the angular vibration's low-pass: the second leaves the angular jerk the
+    /// fine grid's white drive, the third keeps it continuous and finite.
+    pub rate_low_pass: LowPass,
     /// How the vibration follows the rotation's vigour: its RMS at an instant is the RMS above
     /// times `(|w_s| / rate_rms_rad_s)^k`, `w_s` the smooth rotation's rate (0: stationary). A
     /// hand shakes the board harder when it turns it faster; with `k > 0` the vibration is
@@ -117,6 +123,8 @@ impl Default for Vibration {
             rate_rms_rad_s: 0.0,
             band_hz: VIBRATION_BAND_HZ,
             rate_band_hz: None,
+            low_pass: LowPass::Second,
+            rate_low_pass: LowPass::Second,
             rate_exponent: 0.0,
         }
     }
@@ -807,21 +815,19 @@ fn simulate_fine<R: Rng + ?Sized>(
     let vib = &protocol.vibration;
     let accel_axis_rms = vib.accel_rms_m_s2.max(0.0) / 3f64.sqrt();
     let rate_axis_rms = vib.rate_rms_rad_s.max(0.0) / 3f64.sqrt();
-    let noise = |band: [f64; 2]| {
-        BandNoise::new(band, 1.0, h).ok_or_else(|| RecordingError::Unusable {
+    let noise = |band: [f64; 2], low_pass: LowPass| {
+        BandNoise::with_low_pass(band, 1.0, h, low_pass).ok_or_else(|| RecordingError::Unusable {
             path: std::path::PathBuf::from("simulated"),
             problem: format!("vibration band {band:?} Hz with a {h} s step is not usable"),
         })
     };
-    // The angular vibration has its own process when its band differs.
-    let separate = rate_axis_rms > 0.0 && vib.rate_band_hz.is_some_and(|b| b != vib.band_hz);
+    // The angular vibration has its own process when its band or its low-pass differs.
+    let rate_band = vib.rate_band_hz.unwrap_or(vib.band_hz);
+    let separate = rate_axis_rms > 0.0 && (rate_band != vib.band_hz || vib.rate_low_pass != vib.low_pass);
     let shared = if separate { 0.0 } else { rate_axis_rms };
     let axes = 3 * (usize::from(accel_axis_rms > 0.0) + usize::from(shared > 0.0));
-    let bank = if axes > 0 { Some(Bank::start(noise(vib.band_hz)?, axes, rng)) } else { None };
-    let angular_bank = match vib.rate_band_hz {
-        Some(b) if separate => Some(Bank::start(noise(b)?, 3, rng)),
-        _ => None,
-    };
+    let bank = if axes > 0 { Some(Bank::start(noise(vib.band_hz, vib.low_pass)?, axes, rng)) } else { None };
+    let angular_bank = if separate { Some(Bank::start(noise(rate_band, vib.rate_low_pass)?, 3, rng)) } else { None };
     let turns = (0..protocol.poses.saturating_sub(1))
         .map(|p| {
             let rel = attitudes[p].inverse() * attitudes[p + 1];

@@ -61,15 +61,21 @@ fn a_protocol_run_calibrates_every_trial_and_records_the_bound_of_every_paramete
 #[test]
 fn bad_protocols_are_refused_naming_the_key() {
     let dir = tempfile::tempdir().unwrap();
-    let cases: [(&str, &str, &str); 7] = [
+    let cases: [(&str, &str, &str); 9] = [
         ("pose_s = 9.0", "pose_s = 3.0", "protocol.pose_s"),
-        ("vibration_band_hz = [2.0, 55.0]", "vibration_band_hz = [55.0, 2.0]", "protocol.vibration_band_hz"),
+        ("vibration_band_hz = [2.0, 60.0]", "vibration_band_hz = [60.0, 2.0]", "protocol.vibration_band_hz"),
         (
             "vibration_rate_band_hz = [3.0, 25.0]",
             "vibration_rate_band_hz = [3.0, 2000.0]",
             "protocol.vibration_rate_band_hz",
         ),
         ("vibration_rate_exponent = 2.0", "vibration_rate_exponent = -1.0", "protocol.vibration_rate_exponent"),
+        (
+            "vibration_rate_low_pass_order = 3",
+            "vibration_rate_low_pass_order = 4",
+            "protocol.vibration_rate_low_pass_order",
+        ),
+        ("vibration_low_pass_order = 3", "vibration_low_pass_order = 1", "protocol.vibration_low_pass_order"),
         ("form = \"tilt\"", "form = \"triad\"", "calibration.form"),
         ("[protocol]", "[schedule]\npreset = \"hung_lee_2006\"\n\n[protocol]", "protocol"),
         ("use_gyro = false", "use_gyro = false\nposes_per_face = 2", "poses_per_face"),

@@ -493,7 +493,7 @@ fn shared_recording(k: usize) -> std::path::PathBuf {
 }
 
 /// The matched protocol with overrides from `spec` ("key=value ...": vib, vrate, vband=lo,hi,
-/// rband=lo,hi (the angular vibration's band), k (the vibration's rate exponent), band=lo,hi, aband=lo,hi (the acceleration's), acc, rate, tau and gtau (the accelerometers'
+/// rband=lo,hi (the angular vibration's band), rorder (its low-pass's order, 2 or 3), order (the translation's), k (the vibration's rate exponent), band=lo,hi, aband=lo,hi (the acceleration's), acc, rate, tau and gtau (the accelerometers'
 /// and gyroscopes' anti-alias time constants, ms), clocks=0|1, dynamic, poses): the tuning aid's
 /// input.
 fn tuned_protocol(spec: &str) -> (ProtocolCell, bool) {
@@ -515,6 +515,14 @@ fn tuned_protocol(spec: &str) -> (ProtocolCell, bool) {
             "tau" => p.anti_alias.accel_time_constant_s = nums[0] * 1e-3,
             "gtau" => p.anti_alias.gyro_time_constant_s = nums[0] * 1e-3,
             "k" => p.vibration.rate_exponent = nums[0],
+            "order" => {
+                p.vibration.low_pass =
+                    gfcal::selfcal::vibration::LowPass::from_order(nums[0] as u32).expect("order 2 or 3")
+            }
+            "rorder" => {
+                p.vibration.rate_low_pass =
+                    gfcal::selfcal::vibration::LowPass::from_order(nums[0] as u32).expect("order 2 or 3")
+            }
             "clocks" => clocks = nums[0] > 0.0,
             "dynamic" => p.dynamic_s = nums[0],
             "poses" => p.poses = nums[0] as usize,
@@ -723,6 +731,8 @@ fn fast_vibrating_protocol(n: usize, rate_hz: f64) -> Protocol {
         rate_rms_rad_s: 3.0,
         band_hz: [2.0, 40.0],
         rate_band_hz: Some([2.0, 20.0]),
+        low_pass: gfcal::selfcal::vibration::LowPass::Second,
+        rate_low_pass: gfcal::selfcal::vibration::LowPass::Third,
         rate_exponent: 1.0,
     };
     p
@@ -1067,4 +1077,78 @@ fn write_a_simulated_recording_of_the_matched_protocol_with_its_truth() {
     assert_eq!(back.outputs, rec.outputs);
     assert_eq!(back.gyro_clipped, rec.gyro_clipped);
     eprintln!("wrote {} and truth.json ({} samples)", dir.join("recording.csv").display(), rec.samples());
+}
+
+/// How the rotation phase's residual of a calibration spreads over its samples: RMS, kurtosis of
+/// the outputs' residuals, the shares of the squares the worst 1% and 5% of the samples carry, the
+/// RMS without the worst 5%, and the median rate of the worst 1% against all samples'. The
+/// residual is taken against the outputs the calibration fitted (corrected by its clocks, where it
+/// has them).
+fn residual_tail(array: &RecordingArray, rec: &Recording) -> String {
+    use gfcal::selfcal::calibrate::{corrected_dynamic, prepare_dynamic};
+    use gfcal::selfcal::model::sensors;
+    let cal = calibrate(rec, array, &CalibrateSettings::default()).expect("calibrates");
+    let d = prepare_dynamic(rec, &cal.segmentation, false, cal.gyro_bias_rad_s).data.expect("a rotation phase");
+    let outputs = match cal.clocks.as_ref() {
+        Some(c) => corrected_dynamic(array, &cal.fit, &d, c).outputs,
+        None => d.outputs.clone(),
+    };
+    let sens = sensors(&array.array, &cal.fit.params);
+    let n = sens.len();
+    // (sum of squares, outputs used, sample)
+    let mut per_sample: Vec<(f64, usize, usize)> = Vec::new();
+    let (mut m2, mut m4, mut count) = (0.0, 0.0, 0usize);
+    for i in 0..d.samples() {
+        let m = &cal.fit.motion[i];
+        let (mut ss, mut k) = (0.0, 0);
+        for (j, s) in sens.iter().enumerate() {
+            if d.used[i * n + j] {
+                let r = outputs[(i, j)] - s.output(&m.specific_force_m_s2(&s.position_m));
+                ss += r * r;
+                k += 1;
+                m2 += r * r;
+                m4 += r.powi(4);
+                count += 1;
+            }
+        }
+        per_sample.push((ss, k, i));
+    }
+    let (m2, m4) = (m2 / count as f64, m4 / count as f64);
+    per_sample.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let total: f64 = per_sample.iter().map(|x| x.0).sum();
+    let worst = |q: f64| ((per_sample.len() as f64) * q).ceil() as usize;
+    let share = |q: f64| per_sample[..worst(q)].iter().map(|x| x.0).sum::<f64>() / total;
+    let rest = &per_sample[worst(0.05)..];
+    let rest_rms = (rest.iter().map(|x| x.0).sum::<f64>() / rest.iter().map(|x| x.1).sum::<usize>() as f64).sqrt();
+    let rate = |v: &[(f64, usize, usize)]| median(v.iter().map(|x| cal.fit.motion[x.2].omega_rad_s.norm()).collect());
+    format!(
+        "RMS {:.3} m/s^2, kurtosis {:.0}, worst 1% of samples {:.1}% of the squares, worst 5% {:.1}%, RMS without the worst 5% {:.3} m/s^2; median rate of the worst 1% {:.1} rad/s (all {:.1})",
+        m2.sqrt(),
+        m4 / (m2 * m2),
+        100.0 * share(0.01),
+        100.0 * share(0.05),
+        rest_rms,
+        rate(&per_sample[..worst(0.01)]),
+        rate(&per_sample)
+    )
+}
+
+/// Where the rotation phase's residual sits (docs/sample-clocks.md, "What the clocks leave"): the
+/// six real recordings calibrated gyroscope-free with the clocks and without them, and three
+/// simulated recordings of configs/mimu4444_protocol.toml with them (about 2 minutes).
+#[test]
+#[ignore = "real data, 12 calibrations and 3 simulated ones: prints where the residual sits"]
+fn print_where_the_rotation_phase_residual_sits() {
+    let array = mimu_array();
+    for k in 1..=6 {
+        let rec = Recording::read(&shared_recording(k), &array).expect("recording");
+        println!("recording {k}, clocks: {}", residual_tail(&array, &rec));
+        println!("recording {k}, no clock model: {}", residual_tail(&without_clocks(&array), &rec));
+    }
+    let cell = matched_cell();
+    for seed in 1..=3 {
+        let truth = config_truth(&cell.array, seed);
+        let sim = simulate(&cell.array, &truth, &cell.protocol, &mut trial_rng(seed, 1)).expect("simulated");
+        println!("simulated {seed}, clocks: {}", residual_tail(&cell.array, &sim.recording));
+    }
 }
