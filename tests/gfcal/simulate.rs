@@ -1231,10 +1231,30 @@ fn print_what_huber_pseudo_observations_change() {
                 .map(|(j, p)| (cal.fit.params.get(j, p) - truth.get(j, p)) * 1e6)
                 .collect()
         };
+        // The clocks' relative rate offsets (each less the packages' mean), ppm.
+        let clock_error_ppm = |cal: &Calibration| -> Vec<f64> {
+            let c = cal.clocks.as_ref().expect("clocks fitted");
+            let est = gfcal::selfcal::timing::relative_rates(&c.clocks);
+            let tru = gfcal::selfcal::timing::relative_rates(&sim.clocks);
+            est.iter().zip(&tru).filter_map(|(e, t)| Some((e.as_ref()? - t.as_ref()?) * 1e6)).collect()
+        };
+        // The gyroscope-free rate against the true rate, %.
+        let rate_error = |cal: &Calibration| -> f64 {
+            let (mut e, mut r) = (0.0, 0.0);
+            for (k, &i) in cal.dynamic_index.iter().enumerate() {
+                e += (cal.fit.motion[k].omega_rad_s - sim.motion[i].omega_rad_s).norm_squared();
+                r += sim.motion[i].omega_rad_s.norm_squared();
+            }
+            100.0 * (e / r).sqrt()
+        };
         println!(
-            "simulated {seed}: locations' RMS error {:.1} -> {:.1} um",
+            "simulated {seed}: locations' RMS error {:.1} -> {:.1} um; the clocks' relative rate offsets' RMS error {:.3} -> {:.3} ppm; the rate {:.1}% -> {:.1}% off the truth",
             rms(&error_um(&plain)),
-            rms(&error_um(&huber))
+            rms(&error_um(&huber)),
+            rms(&clock_error_ppm(&plain)),
+            rms(&clock_error_ppm(&huber)),
+            rate_error(&plain),
+            rate_error(&huber)
         );
     }
     let array = mimu_array();
