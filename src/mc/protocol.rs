@@ -26,7 +26,7 @@
 //! vibration_rate_band_hz = [2.0, 15.0]  # its own band (default: vibration_band_hz)
 //! vibration_rate_low_pass_order = 3     # its low-pass: 2 (default) or 3 (a finite angular jerk)
 //! vibration_low_pass_order = 3          # the translation's: 2 (default) or 3 (less jerk above the band)
-//! vibration_band_hz = [2.0, 50.0]       # its band: 1st-order high-pass, 2nd-order Butterworth low-pass
+//! vibration_band_hz = [2.0, 50.0]       # its band: 1st-order high-pass, Butterworth low-pass of vibration_low_pass_order
 //! vibration_rate_exponent = 0.0         # its RMS goes as (|rate| / rate_rms_rad_s)^k (0: stationary)
 //! sample_clocks = true                  # packages with sample_clock_hz + sample_and_hold sample on their own clocks
 //! clock_rate_offset_ppm = { dist = "normal", sigma = 1300.0 }       # per package (also uniform, fixed)

@@ -37,8 +37,8 @@
 //! between grid points (a package's tick) is exact, not interpolated. The process starts from
 //! its stationary distribution on the grid (the discrete Lyapunov equation) and is scaled to the
 //! requested RMS per axis. Both orders are held in four-state matrices; the second order's fourth
-//! state is zero and stays zero (its row and column are zero), so its arithmetic is the
-//! three-state one's.
+//! state starts at zero and stays there (its row and column of `A` and its drive are zero), so
+//! its arithmetic is the three-state one's.
 
 use nalgebra::{DMatrix, DVector, Matrix4, Matrix5, Vector4};
 use rand::{Rng, RngExt};

@@ -1133,7 +1133,7 @@ fn residual_tail(array: &RecordingArray, rec: &Recording) -> String {
 
 /// Where the rotation phase's residual sits (docs/sample-clocks.md, "What the clocks leave"): the
 /// six real recordings calibrated gyroscope-free with the clocks and without them, and three
-/// simulated recordings of configs/mimu4444_protocol.toml with them (about 2 minutes).
+/// simulated recordings of configs/mimu4444_protocol.toml with them (about 2.5 minutes).
 #[test]
 #[ignore = "real data, 12 calibrations and 3 simulated ones: prints where the residual sits"]
 fn print_where_the_rotation_phase_residual_sits() {
