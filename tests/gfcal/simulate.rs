@@ -1169,7 +1169,7 @@ fn huber_pseudo_observations(array: &RecordingArray, rec: &Recording, cal: &Cali
             }
         }
     }
-    let c = 2.0 * 1.4826 * median(residuals.iter().map(|x| x.2.abs()).collect());
+    let c = huber_setting("GFCAL_HUBER_C", 2.0) * 1.4826 * median(residuals.iter().map(|x| x.2.abs()).collect());
     let mut out = rec.clone();
     for &(i, j, r) in &residuals {
         out.outputs[(cal.dynamic_index[i], j)] += r.clamp(-c, c) - r;
@@ -1177,11 +1177,18 @@ fn huber_pseudo_observations(array: &RecordingArray, rec: &Recording, cal: &Cali
     out
 }
 
-/// A calibration and the one of its Huber pseudo-observations (twice).
+/// A setting of the Huber experiment from the environment (`GFCAL_HUBER_C`: the clip in robust
+/// scales, 2 unless set; `GFCAL_HUBER_ROUNDS`: the pseudo-observation rounds, 2 unless set).
+fn huber_setting(name: &str, default: f64) -> f64 {
+    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+/// A calibration and the one of its Huber pseudo-observations (twice unless `GFCAL_HUBER_ROUNDS`
+/// says otherwise).
 fn with_huber(array: &RecordingArray, rec: &Recording) -> (Calibration, Calibration) {
     let plain = calibrate(rec, array, &CalibrateSettings::default()).expect("calibrates");
     let mut huber = plain.clone();
-    for _ in 0..2 {
+    for _ in 0..huber_setting("GFCAL_HUBER_ROUNDS", 2.0) as usize {
         let y = huber_pseudo_observations(array, rec, &huber);
         huber = calibrate(&y, array, &CalibrateSettings::default()).expect("calibrates the pseudo-observations");
     }
@@ -1214,7 +1221,8 @@ fn rate_off_gyroscopes(rec: &Recording, cal: &Calibration) -> (f64, f64) {
 /// against the truth; on the six real recordings the gyroscope-free rate against the gyroscopes,
 /// the worst spread of a package's sensing points, and the locations' spread over the six
 /// recordings (about 3.5 minutes). The pseudo-observations' printed sigmas are not honest (their
-/// residuals are clipped), so none is printed.
+/// residuals are clipped), so none is printed. `GFCAL_HUBER_C` and `GFCAL_HUBER_ROUNDS` change the
+/// clip (in robust scales, default 2) and the rounds (default 2).
 #[test]
 #[ignore = "real data, 18 calibrations and 9 simulated ones: prints what Huber pseudo-observations change"]
 fn print_what_huber_pseudo_observations_change() {
