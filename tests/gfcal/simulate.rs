@@ -1079,13 +1079,10 @@ fn write_a_simulated_recording_of_the_matched_protocol_with_its_truth() {
     eprintln!("wrote {} and truth.json ({} samples)", dir.join("recording.csv").display(), rec.samples());
 }
 
-/// How the rotation phase's residual of a calibration spreads over its samples: RMS, kurtosis of
-/// the outputs' residuals, the shares of the squares the worst 1% and 5% of the samples carry, the
-/// RMS without the worst 5%, and the median rate of the worst 1% against all samples'. The
-/// residual is taken against the outputs the calibration fitted (corrected by its clocks, where it
-/// has them).
-fn residual_tail(array: &RecordingArray, rec: &Recording) -> String {
-    let cal = calibrate(rec, array, &CalibrateSettings::default()).expect("calibrates");
+/// Every used rotation-phase output's residual of `cal` as `(sample, accelerometer, residual)`,
+/// in sample order: against the outputs the calibration fitted (corrected by its clocks, where it
+/// has them), gyroscope-free.
+fn rotation_residuals(array: &RecordingArray, rec: &Recording, cal: &Calibration) -> Vec<(usize, usize, f64)> {
     let d = prepare_dynamic(rec, &cal.segmentation, false, cal.gyro_bias_rad_s).data.expect("a rotation phase");
     let outputs = match cal.clocks.as_ref() {
         Some(c) => corrected_dynamic(array, &cal.fit, &d, c).outputs,
@@ -1093,23 +1090,39 @@ fn residual_tail(array: &RecordingArray, rec: &Recording) -> String {
     };
     let sens = sensors(&array.array, &cal.fit.params);
     let n = sens.len();
+    let mut residuals = Vec::new();
+    for i in 0..d.samples() {
+        let m = &cal.fit.motion[i];
+        for (j, s) in sens.iter().enumerate() {
+            if d.used[i * n + j] {
+                residuals.push((i, j, outputs[(i, j)] - s.output(&m.specific_force_m_s2(&s.position_m))));
+            }
+        }
+    }
+    residuals
+}
+
+/// How the rotation phase's residual of a calibration spreads over its samples: RMS, kurtosis of
+/// the outputs' residuals, the shares of the squares the worst 1% and 5% of the samples carry, the
+/// RMS without the worst 5%, and the median rate of the worst 1% against all samples'. The
+/// residual is taken against the outputs the calibration fitted (corrected by its clocks, where it
+/// has them).
+fn residual_tail(array: &RecordingArray, rec: &Recording) -> String {
+    let cal = calibrate(rec, array, &CalibrateSettings::default()).expect("calibrates");
     // (sum of squares, outputs used, sample)
     let mut per_sample: Vec<(f64, usize, usize)> = Vec::new();
     let (mut m2, mut m4, mut count) = (0.0, 0.0, 0usize);
-    for i in 0..d.samples() {
-        let m = &cal.fit.motion[i];
-        let (mut ss, mut k) = (0.0, 0);
-        for (j, s) in sens.iter().enumerate() {
-            if d.used[i * n + j] {
-                let r = outputs[(i, j)] - s.output(&m.specific_force_m_s2(&s.position_m));
-                ss += r * r;
-                k += 1;
-                m2 += r * r;
-                m4 += r.powi(4);
-                count += 1;
-            }
+    for (i, _, r) in rotation_residuals(array, rec, &cal) {
+        if per_sample.last().is_none_or(|x| x.2 != i) {
+            per_sample.push((0.0, 0, i));
         }
-        per_sample.push((ss, k, i));
+        if let Some(last) = per_sample.last_mut() {
+            last.0 += r * r;
+            last.1 += 1;
+        }
+        m2 += r * r;
+        m4 += r.powi(4);
+        count += 1;
     }
     let (m2, m4) = (m2 / count as f64, m4 / count as f64);
     per_sample.sort_by(|a, b| b.0.total_cmp(&a.0));
@@ -1156,19 +1169,7 @@ fn print_where_the_rotation_phase_residual_sits() {
 /// `psi` clipping at `2 s`, `s` 1.4826 times the median absolute residual. Every sample stays in
 /// its run (setting samples aside cuts the runs and loses the rate's sign; EXPECTATIONS.md).
 fn huber_pseudo_observations(array: &RecordingArray, rec: &Recording, cal: &Calibration) -> Recording {
-    let d = prepare_dynamic(rec, &cal.segmentation, false, cal.gyro_bias_rad_s).data.expect("a rotation phase");
-    let outputs = corrected_dynamic(array, &cal.fit, &d, cal.clocks.as_ref().expect("clocks fitted")).outputs;
-    let sens = sensors(&array.array, &cal.fit.params);
-    let n = sens.len();
-    let mut residuals = Vec::new();
-    for i in 0..d.samples() {
-        let m = &cal.fit.motion[i];
-        for (j, s) in sens.iter().enumerate() {
-            if d.used[i * n + j] {
-                residuals.push((i, j, outputs[(i, j)] - s.output(&m.specific_force_m_s2(&s.position_m))));
-            }
-        }
-    }
+    let residuals = rotation_residuals(array, rec, cal);
     let c = huber_setting("GFCAL_HUBER_C", 2.0) * 1.4826 * median(residuals.iter().map(|x| x.2.abs()).collect());
     let mut out = rec.clone();
     for &(i, j, r) in &residuals {
@@ -1195,24 +1196,18 @@ fn with_huber(array: &RecordingArray, rec: &Recording) -> (Calibration, Calibrat
     (plain, huber)
 }
 
-/// The gyroscope-free rate against the bias-corrected gyroscopes, % RMS, overall and above 20 rad/s.
-fn rate_off_gyroscopes(rec: &Recording, cal: &Calibration) -> (f64, f64) {
-    let b = cal.gyro_bias_rad_s.unwrap_or_default();
-    let (mut e, mut r, mut e20, mut r20) = (0.0, 0.0, 0.0, 0.0);
-    for (k, &i) in cal.dynamic_index.iter().enumerate() {
-        if rec.gyro_clipped[i] {
-            continue;
-        }
-        let g = rec.gyro_rate_rad_s[i] - b;
-        let d2 = (cal.fit.motion[k].omega_rad_s - g).norm_squared();
-        e += d2;
-        r += g.norm_squared();
-        if g.norm() > 20.0 {
-            e20 += d2;
-            r20 += g.norm_squared();
+/// The gyroscope-free rate against the bias-corrected gyroscopes, % RMS, overall and above 20 rad/s:
+/// the calibration's own check (`GyroCheck`), its rate bands from 20 rad/s up pooled.
+fn rate_off_gyroscopes(cal: &Calibration) -> (f64, f64) {
+    let g = cal.gyro_check.as_ref().expect("the array's gyroscopes are checked");
+    let (mut d2, mut r2) = (0.0, 0.0);
+    for &(lo, _, count, rms_rad_s, relative) in &g.by_rate {
+        if lo >= 20.0 && count > 0 {
+            d2 += count as f64 * rms_rad_s * rms_rad_s;
+            r2 += count as f64 * (rms_rad_s / relative).powi(2);
         }
     }
-    (100.0 * (e / r).sqrt(), 100.0 * (e20 / r20).sqrt())
+    (100.0 * g.relative, 100.0 * (d2 / r2).sqrt())
 }
 
 /// What a fit that down-weights the rotation phase's heavy tail would change, tried with Huber's
@@ -1282,7 +1277,7 @@ fn print_what_huber_pseudo_observations_change() {
     for k in 1..=6 {
         let rec = Recording::read(&shared_recording(k), &array).expect("recording");
         let (plain, huber) = with_huber(&array, &rec);
-        let ((ra, ra20), (rb, rb20)) = (rate_off_gyroscopes(&rec, &plain), rate_off_gyroscopes(&rec, &huber));
+        let ((ra, ra20), (rb, rb20)) = (rate_off_gyroscopes(&plain), rate_off_gyroscopes(&huber));
         println!(
             "recording {k}: rate off the gyroscopes {ra:.1}% -> {rb:.1}% (above 20 rad/s {ra20:.1}% -> {rb20:.1}%); worst spread of a package's sensing points {:.2} -> {:.2} mm",
             points(&plain.fit.params),
