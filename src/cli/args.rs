@@ -198,6 +198,10 @@ pub enum Command {
         /// Take the angular rate from the reference gyroscopes instead of the accelerometers.
         #[arg(long)]
         use_gyro: bool,
+        /// Fit a clocked rotation phase by least squares alone, without Huber's weights on the
+        /// heavy tail the sample clocks leave (for comparison; see docs/sample-clocks.md).
+        #[arg(long)]
+        plain_least_squares: bool,
         /// Predict these recordings of the same array with this calibration (only their pose
         /// directions and motion refitted) and report the residuals.
         #[arg(long, num_args = 1..)]

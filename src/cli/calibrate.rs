@@ -21,6 +21,7 @@ pub struct CalibrateArgs<'a> {
     pub json: Option<&'a Path>,
     pub report: Option<&'a Path>,
     pub use_gyro: bool,
+    pub plain_least_squares: bool,
     pub held_out: &'a [PathBuf],
     pub gravity_m_s2: f64,
     pub detector: DetectorSettings,
@@ -87,6 +88,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
         detector: a.detector,
         fit: FitSettings { gravity_m_s2: a.gravity_m_s2, ..FitSettings::default() },
         use_gyro: a.use_gyro,
+        plain_least_squares: a.plain_least_squares,
     };
     let started_utc = humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string();
     let started = std::time::Instant::now();

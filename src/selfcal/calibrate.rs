@@ -14,10 +14,12 @@ use nalgebra::{DMatrix, Vector3};
 use super::clock::{SampleClock, fit_packages, half_differences};
 use super::data::{DynamicData, StaticData};
 use super::filter::{accelerometer_time_constants, filter_corrected};
-use super::fit::{Fit, FitError, FitSettings, fit, fit_from};
-use super::model::sensors;
+use super::fit::{Fit, FitError, FitSettings, fit, fit_from, pooled_dynamic_variance};
+use super::huber::{self, HuberSummary};
+use super::misfit;
+use super::model::{PER_ACCEL, sensors};
 use super::recording::Recording;
-use super::robust::robust_covariance;
+use super::robust::{robust_covariance, robust_covariance_with_bread};
 use super::segment::{DetectorSettings, Interval, Segmentation, segment};
 use super::tension::{StaticTension, tension_at};
 use super::timing::{
@@ -33,6 +35,9 @@ pub struct CalibrateSettings {
     /// Take the angular rate from the reference gyroscopes (the published method) instead of
     /// estimating it from the accelerometers.
     pub use_gyro: bool,
+    /// Fit a clocked rotation phase by least squares alone, without Huber's weights on the
+    /// heavy tail the clocks leave (`selfcal::huber`; for comparison: the default has them).
+    pub plain_least_squares: bool,
 }
 
 /// Why a calibration cannot be done.
@@ -173,7 +178,8 @@ pub fn calibrate(
     let (fit, clocks, clock_note) = match dynamic.filter(|_| array.has_sample_clocks()) {
         Some(d) => {
             check_clock_rates(rec, array)?;
-            match estimate_clocks(rec, array, &seg, &stat, d, &settings.fit, &fit) {
+            let robust = !settings.plain_least_squares;
+            match estimate_clocks(rec, array, &seg, &stat, d, &settings.fit, &fit, robust) {
                 Ok((f, c)) => (f, Some(c), None),
                 Err(ClockFailure::NotResolved(why)) => (fit, None, Some(why)),
                 Err(ClockFailure::Fit(source)) => return Err(CalibrateError::Fit { path: rec.path.clone(), source }),
@@ -319,6 +325,9 @@ enum ClockFailure {
 }
 
 /// The packages' clocks fitted with the calibration (module docs); `fit0` is the fit without them.
+/// `robust`: once the least-squares iterations settle, go on with Huber's weights
+/// (`selfcal::huber`).
+#[allow(clippy::too_many_arguments)]
 fn estimate_clocks(
     rec: &Recording,
     array: &RecordingArray,
@@ -327,6 +336,7 @@ fn estimate_clocks(
     d: &DynamicData,
     settings: &FitSettings,
     fit0: &Fit,
+    robust: bool,
 ) -> Result<(Fit, ClockEstimate), ClockFailure> {
     let not = |why: String| ClockFailure::NotResolved(why);
     let dt = host_dt_s(&rec.t_s).ok_or_else(|| not("the recording has no time step".into()))?;
@@ -386,7 +396,7 @@ fn estimate_clocks(
     let mut fit = fit0.clone();
     let before = dynamic_rms(fit0);
     let all = 0..d.samples();
-    let problem_at = |fit: &Fit| {
+    let problem_at = |fit: &Fit, d: &DynamicData| {
         let sens = sensors(&array.array, &fit.params);
         let weights: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
         ClockProblem::new(&sens, d, &fit.motion, &weights, &package_of)
@@ -403,37 +413,108 @@ fn estimate_clocks(
         }
         clocks
     };
-    let mut fitted_to = d.clone();
+    let mut fitted_to: DynamicData;
+    // What the iterations fit: the outputs as measured, then (`robust`) Huber's
+    // pseudo-observations `d + shift`; `fitted_shift` is the shift `fitted_to` carries.
+    let mut data = d.clone();
+    let mut shift = DMatrix::zeros(d.samples(), d.outputs.ncols());
+    let mut fitted_shift = shift.clone();
+    let mut huber: Option<HuberSummary> = None;
+    let mut previous_params = fit0.params.clone();
+    let mut held_variance: Option<f64> = None;
     // The outer iterations run until the rotation phase's residual settles (a relative change
     // under OUTER_TOLERANCE), at most MAX_OUTER_ITERATIONS. With the dynamic variance pooled
     // (`selfcal::fit`) each one lowers the misfit; with a component per accelerometer they ran
-    // away, which is why this once stopped at two.
+    // away, which is why this once stopped at two. If `robust`, Huber's iterations start once an
+    // iteration changes the residual by under HUBER_START_TOLERANCE, and run until no parameter
+    // moves by HUBER_TOLERANCE_SIGMA of its sigma (at most MAX_HUBER_ITERATIONS).
     let mut iterations = 0;
     let mut previous_rms = before;
-    while iterations < MAX_OUTER_ITERATIONS {
+    loop {
         iterations += 1;
-        let problem = problem_at(&fit);
-        clocks = problem.relative_steps(&clocks, all.clone(), 3).0;
-        clocks = refine_alone(&problem, clocks);
+        let problem = problem_at(&fit, &data);
+        // Huber's iterations hold the clocks where least squares put them: their information
+        // lies in the violent samples the clip takes; stepping them on the clipped outputs left
+        // their errors as they were (simulated, 6 seeds) and took a tenth more time.
+        if huber.is_none() {
+            clocks = problem.relative_steps(&clocks, all.clone(), 3).0;
+            clocks = refine_alone(&problem, clocks);
+        }
         let timing = problem.timing(&clocks);
         let corrected = DynamicData {
-            outputs: with_filters(array, &fit, problem.corrected(&d.outputs, &clocks, &timing)),
+            outputs: with_filters(array, &fit, problem.corrected(&data.outputs, &clocks, &timing)),
             extra_unknowns_per_sample: TIMING_UNKNOWNS_PER_SAMPLE,
             ..d.clone()
         };
-        let refit = FitSettings { rate_sigmas: false, ..*settings };
+        let refit = FitSettings { rate_sigmas: false, held_dynamic_variance_m2_s4: held_variance, ..*settings };
         fit = fit_from(&array.array, stat, Some(&corrected), &refit, Some(&fit)).map_err(ClockFailure::Fit)?;
         fitted_to = corrected;
+        fitted_shift.clone_from(&shift);
         let rms = dynamic_rms(&fit);
-        let settled = (previous_rms - rms).abs() <= OUTER_TOLERANCE * previous_rms;
+        let change = (previous_rms - rms).abs() / previous_rms;
         previous_rms = rms;
-        if settled {
+        if !robust {
+            if change <= OUTER_TOLERANCE || iterations >= MAX_OUTER_ITERATIONS {
+                break;
+            }
+            continue;
+        }
+        if huber.is_none() && change > HUBER_START_TOLERANCE && iterations < MAX_OUTER_ITERATIONS {
+            continue;
+        }
+        // Huber's iterations stop when no parameter moved by HUBER_TOLERANCE_SIGMA of its
+        // sigma (the refit's own) over the last one.
+        let moved_sigma = (0..array.array.len())
+            .flat_map(|j| (0..PER_ACCEL).map(move |p| (j, p)))
+            .map(|(j, p)| (fit.params.get(j, p) - previous_params.get(j, p)).abs() / fit.sigma(j, p))
+            .filter(|v| v.is_finite())
+            .fold(0.0_f64, f64::max);
+        previous_params.clone_from(&fit.params);
+        if let Some(h) = &huber
+            && (moved_sigma <= HUBER_TOLERANCE_SIGMA || h.iterations >= MAX_HUBER_ITERATIONS)
+        {
             break;
         }
+        // Huber's update: the residuals of the outputs as measured (the fitted pseudo-observations
+        // less their shift), their robust scale, the new shift.
+        let residual = misfit::residuals(&array.array, &fit.params, &fitted_to, &fit.motion) - &fitted_shift;
+        let scale = huber::robust_scale(&residual, &d.used);
+        let clip = huber::CLIP_SCALES * scale;
+        shift = huber::shift(&residual, &d.used, clip);
+        // The pseudo-observations are weighted with the variance of the outputs as measured.
+        let measured = DynamicData { outputs: &fitted_to.outputs - &fitted_shift, ..fitted_to.clone() };
+        let (rms_measured, counts) = misfit::residual_rms(&array.array, &fit.params, &measured, &fit.motion);
+        held_variance = pooled_dynamic_variance(&measured, &rms_measured, &counts, misfit::local_unknowns(&measured));
+        data.outputs = &d.outputs + &shift;
+        let h = huber.get_or_insert(HuberSummary {
+            clip_m_s2: clip,
+            robust_scale_m_s2: scale,
+            clipped_share: 0.0,
+            iterations: 0,
+        });
+        h.iterations += 1;
+        h.clip_m_s2 = clip;
+        h.robust_scale_m_s2 = scale;
+        h.clipped_share = huber::clipped_share(&residual, &d.used, clip);
     }
+    // The residual as measured, for every figure reported (the pseudo-observations' residual is
+    // what the weights made of it).
+    let measured = DynamicData { outputs: &fitted_to.outputs - &fitted_shift, ..fitted_to.clone() };
+    let (rms, _) = misfit::residual_rms(&array.array, &fit.params, &measured, &fit.motion);
+    fit.dynamic_chi2_dof = misfit::chi2_dof(&measured, &rms, &stat.sigma);
+    fit.dynamic_residual_rms_m_s2 = rms;
     // The parameters' covariance from the scores' spread over blocks of samples: the residual
-    // the clock model leaves is not white (selfcal::robust). The rate's sigmas follow it.
-    fit.covariance = robust_covariance(&array.array, stat, &fitted_to, settings, &fit).map_err(ClockFailure::Fit)?;
+    // the clock model leaves is not white (selfcal::robust). With Huber's weights the bread counts
+    // the outputs within the clip only (`selfcal::huber`). The rate's sigmas follow it.
+    let bread = huber.as_ref().map(|h| {
+        let residual = misfit::residuals(&array.array, &fit.params, &measured, &fit.motion);
+        huber::within_clip(&fitted_to, &residual, h.clip_m_s2)
+    });
+    fit.covariance = match bread {
+        Some(bread) => robust_covariance_with_bread(&array.array, stat, &fitted_to, &bread, settings, &fit),
+        None => robust_covariance(&array.array, stat, &fitted_to, settings, &fit),
+    }
+    .map_err(ClockFailure::Fit)?;
     fit.omega_sigma_rad_s = crate::selfcal::track::rate_sigmas(
         &array.array,
         &fitted_to,
@@ -446,7 +527,7 @@ fn estimate_clocks(
     // The relative part's sigmas: the linearised normal matrix at the final parameters, checked
     // on the two halves of the rotation phase: the RMS of their relative rate offsets' difference
     // over its sigma (the Birge ratio) inflates every sigma where it exceeds 1.
-    let problem = problem_at(&fit);
+    let problem = problem_at(&fit, d);
     clocks = problem.relative_steps(&clocks, all.clone(), 1).0;
     clocks = refine_alone(&problem, clocks);
     let normal = problem.relative_information(&clocks, all.clone());
@@ -523,12 +604,24 @@ fn estimate_clocks(
         residual_rms_before_m_s2: before,
         residual_rms_after_m_s2: after,
         iterations,
+        huber,
     };
     Ok((fit, estimate))
 }
 
 /// The most outer iterations (clocks, then the calibration refitted) the clocks' estimate runs.
 pub const MAX_OUTER_ITERATIONS: usize = 8;
+
+/// The most outer iterations with Huber's weights, after the least-squares ones.
+pub const MAX_HUBER_ITERATIONS: usize = 12;
+
+/// Huber's iterations stop when no parameter moves by more than this share of its sigma (the
+/// refit's own, below the robust one).
+pub const HUBER_TOLERANCE_SIGMA: f64 = 0.05;
+
+/// Huber's iterations start once an outer iteration changes the residual RMS by less than this
+/// share of itself (or at MAX_OUTER_ITERATIONS).
+pub const HUBER_START_TOLERANCE: f64 = 0.05;
 
 /// The outer iterations stop when the rotation phase's residual RMS changes by less than this
 /// share of itself.

@@ -53,6 +53,11 @@ pub struct FitSettings {
     /// Compute every sample's rate sigma ([`Fit::omega_sigma_rad_s`]; left empty without). The
     /// clocks' outer iterations skip it: their refits' sigmas are replaced after the last one.
     pub rate_sigmas: bool,
+    /// The rotation phase's variance held at this value (m^2/s^4) instead of taken from the
+    /// fitted residuals: Huber's pseudo-observations (`selfcal::huber`) are fitted with the
+    /// variance of the outputs as measured, so that clipping the tail does not also shift the
+    /// balance between the static and the rotation phase.
+    pub held_dynamic_variance_m2_s4: Option<f64>,
 }
 
 impl Default for FitSettings {
@@ -62,6 +67,7 @@ impl Default for FitSettings {
             max_iterations: 50,
             pooled_dynamic_variance: false,
             rate_sigmas: true,
+            held_dynamic_variance_m2_s4: None,
         }
     }
 }
@@ -190,7 +196,7 @@ pub(super) struct Weights {
 /// with each iteration: `docs/sample-clocks.md`). One variance keeps the weights equal (above the
 /// static floors), where the equal-weights leverage is the redundancy the estimate needs. With 9
 /// or 6 local unknowns the per-accelerometer components do not run away.
-fn pooled_dynamic_variance(d: &DynamicData, rms: &[f64], counts: &[usize], local: f64) -> Option<f64> {
+pub(super) fn pooled_dynamic_variance(d: &DynamicData, rms: &[f64], counts: &[usize], local: f64) -> Option<f64> {
     let sum_sq: f64 = rms.iter().zip(counts).filter(|(r, _)| r.is_finite()).map(|(r, &c)| r * r * c as f64).sum();
     let dof = misfit::dof(d, local);
     (dof > 0.0 && sum_sq.is_finite()).then_some(sum_sq / dof)
@@ -262,7 +268,9 @@ pub fn fit_from(
         static_factor = s.static_variance_factor;
         weights.static_w =
             DMatrix::from_fn(poses, n, |p, j| stat.counts[p] as f64 / (stat.sigma[j].powi(2) * static_factor));
-        if s.dynamic_sigma_m_s2.iter().all(|v| v.is_finite() && *v > 0.0) {
+        if let Some(v) = settings.held_dynamic_variance_m2_s4 {
+            weights.dynamic_w = stat.sigma.iter().map(|s| 1.0 / v.max(s * s)).collect();
+        } else if s.dynamic_sigma_m_s2.iter().all(|v| v.is_finite() && *v > 0.0) {
             weights.dynamic_w = s.dynamic_sigma_m_s2.iter().map(|v| 1.0 / (v * v)).collect();
         }
     } else {
@@ -324,7 +332,9 @@ pub fn fit_from(
             let (rms, counts) = misfit::residual_rms(array, &state.params, d, &state.motion);
             let local = misfit::local_unknowns(d);
             let pool = settings.pooled_dynamic_variance || d.extra_unknowns_per_sample > 0;
-            let pooled = pool.then(|| pooled_dynamic_variance(d, &rms, &counts, local)).flatten();
+            let pooled = settings
+                .held_dynamic_variance_m2_s4
+                .or_else(|| pool.then(|| pooled_dynamic_variance(d, &rms, &counts, local)).flatten());
             for j in 0..n {
                 let var = match pooled {
                     Some(v) => v,

@@ -15,6 +15,8 @@
 //! explains the rotation phase to the static noise gives 1; the value is how many times the noise
 //! variance the model leaves.
 
+use nalgebra::DMatrix;
+
 use super::data::DynamicData;
 use super::model::{SampleMotion, SensorSet, sensors};
 use crate::array::Array;
@@ -47,6 +49,16 @@ pub fn residual_rms(
         }
     }
     ((0..n).map(|j| if c[j] > 0 { (s[j] / c[j] as f64).sqrt() } else { f64::NAN }).collect(), c)
+}
+
+/// Every output's residual (samples x accelerometers; NaN where an output is not used).
+pub fn residuals(array: &Array, params: &SensorSet, d: &DynamicData, motion: &[SampleMotion]) -> DMatrix<f64> {
+    let sens = sensors(array, params);
+    let n = array.len();
+    DMatrix::from_fn(d.samples(), n, |i, j| match motion.get(i) {
+        Some(m) if d.used[i * n + j] => d.outputs[(i, j)] - sens[j].output(&m.specific_force_m_s2(&sens[j].position_m)),
+        _ => f64::NAN,
+    })
 }
 
 /// The leverage factor `c_j / (c_j - l_j)` of accelerometer `j` (module docs); infinite when the

@@ -11,7 +11,8 @@
 //! - [`track`]: the motion of every sample of the rotation phase (basins repaired, signed, sigmas);
 //! - [`data`]: the two phases' data, shared by the estimator, the tracker and the prediction;
 //! - [`fit`]: the joint estimator and its covariance; [`robust`]: the covariance from the scores' spread
-//!   over blocks of samples (a clocked calibration's); [`unseen`]: what it cannot see beyond the
+//!   over blocks of samples (a clocked calibration's); [`huber`]: the weights that keep a clocked
+//!   rotation phase's heavy tail from leading it; [`unseen`]: what it cannot see beyond the
 //!   gauge; [`geometry`]: what an array's geometry cannot see, on synthetic data;
 //! - [`misfit`]: the rotation phase's chi^2/dof, one metric for calibrate and diagnose;
 //! - [`tension`]: the static phase refitted alone, against the joint fit;
@@ -24,6 +25,7 @@ pub mod data;
 pub mod filter;
 pub mod fit;
 pub mod geometry;
+pub mod huber;
 pub mod misfit;
 pub mod model;
 pub mod motion;

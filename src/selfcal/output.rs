@@ -155,6 +155,13 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
                 "inflation": num(c.sigma_check.inflation),
                 "half_difference_rms_ppm": num(c.sigma_check.half_difference_rms * 1e6),
             },
+            "robust": c.huber.as_ref().map(|h| json!({
+                "method": ROBUST_ROTATION_PHASE,
+                "clip_m_s2": num(h.clip_m_s2),
+                "robust_scale_m_s2": num(h.robust_scale_m_s2),
+                "clipped_share": num(h.clipped_share),
+                "iterations": h.iterations,
+            })),
         });
     }
     if let Some(note) = &cal.clock_note {
@@ -165,6 +172,9 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
 
 /// How the clocks' sigmas are checked, as the JSON states it.
 pub const SAMPLE_CLOCK_SIGMA_CHECK: &str = "the relative part's linearised sigmas are checked on the two halves of the rotation phase, each half's optimum as linearised at the final clocks (one Gauss-Newton step, the timing motion and the wraps held; birge_ratio null where a half cannot fix its clocks): the RMS of the halves' relative rate-offset difference over its sigma (the Birge ratio, 1 when the sigmas are right) multiplies every linearised sigma where it exceeds 1, and no relative sigma is put below the spread of the gyroscopes' half-phase clocks (per package); the common part's sigma is the spread of the gyroscopes' half-phase clocks over the root of the number of packages";
+
+/// How a clocked rotation phase is fitted, as the JSON states it (`selfcal::huber`).
+pub const ROBUST_ROTATION_PHASE: &str = "Huber's M-estimator after the least-squares iterations: each rotation-phase output's residual after the clocks clipped at clip_m_s2 (2 robust scales, 1.4826 times the median absolute residual) by pseudo-observations, every sample kept in its run; the covariance a sandwich over blocks of samples whose bread counts the outputs within the clip only; residual_rms_m_s2 and chi2_dof are of the outputs as measured";
 
 /// The gauge of the clock model, as the JSON states it.
 pub const SAMPLE_CLOCK_GAUGE: &str = "a change common to every package's clock (phase, rate, drift) moves every sample's age alike and the per-sample motion absorbs it: the accelerometers' linearised model sees the clocks relative to their mean only (3 null directions), so the common part is taken from the gyroscopes' sawtooth (a rising sawtooth with a 1 ms wrap fixes it) and only the relative part is fitted to the accelerometers; without gyroscopes, the mirror age -> period - age (every rate offset's sign flipped) fits as well, so the gyroscopes' sawtooth picks the branch";

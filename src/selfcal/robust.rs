@@ -38,6 +38,20 @@ pub fn robust_covariance(
     settings: &FitSettings,
     fit: &Fit,
 ) -> Result<DMatrix<f64>, FitError> {
+    robust_covariance_with_bread(array, stat, dynamic, dynamic, settings, fit)
+}
+
+/// [`robust_covariance`] of an M-estimator: the scores from `dynamic` (the data the fit was fitted
+/// to), `K` from the information of `bread` (the same samples with only the outputs whose
+/// weight's derivative is 1 used: `selfcal::huber`).
+pub fn robust_covariance_with_bread(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: &DynamicData,
+    bread: &DynamicData,
+    settings: &FitSettings,
+    fit: &Fit,
+) -> Result<DMatrix<f64>, FitError> {
     let n = array.len();
     let na = PER_ACCEL * n;
     let poses = stat.means.nrows();
@@ -52,7 +66,7 @@ pub fn robust_covariance(
     let state = State { params: fit.params.clone(), up: fit.up.clone(), motion: fit.motion.clone() };
     // K from the information at the fit's solution with its stored weights (the fit's own
     // covariance to about 1e-6 of a sigma: the weights go through the stored sigmas).
-    let normal = normal_equations(array, stat, Some(dynamic), settings, &weights, &state, &active);
+    let normal = normal_equations(array, stat, Some(bread), settings, &weights, &state, &active);
     let static_normal = normal_equations(array, stat, None, settings, &weights, &state, &active);
     let gauge = fit.gauge.constraints(array, true, 2 * poses);
     let seen = unseen(&normal.h, &gauge, &active);

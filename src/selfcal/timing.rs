@@ -183,6 +183,8 @@ pub struct ClockEstimate {
     pub residual_rms_after_m_s2: f64,
     /// Outer iterations (corrected outputs refitted).
     pub iterations: usize,
+    /// How the rotation phase's heavy tail was down-weighted (`None`: least squares alone).
+    pub huber: Option<crate::selfcal::huber::HuberSummary>,
     /// The share of the rotation phase's weighted misfit (at the final parameters and motion)
     /// that the timing model removes with the fitted clocks, and with the clocks read at
     /// shifted times (the null: [`ClockProblem::shares_removed`]).

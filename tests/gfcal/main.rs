@@ -20,6 +20,7 @@ mod recorded;
 mod recorded_generators;
 mod reference;
 mod report;
+mod robust_rotation;
 mod sample_rates;
 mod selfcal;
 mod simulate;

@@ -1164,36 +1164,13 @@ fn print_where_the_rotation_phase_residual_sits() {
     }
 }
 
-/// The recording with its rotation-phase outputs moved to Huber's pseudo-observations
-/// `y - r + psi(r)`: `r` each output's residual after `cal` (its clocks' correction included),
-/// `psi` clipping at `2 s`, `s` 1.4826 times the median absolute residual. Every sample stays in
-/// its run (setting samples aside cuts the runs and loses the rate's sign; EXPECTATIONS.md).
-fn huber_pseudo_observations(array: &RecordingArray, rec: &Recording, cal: &Calibration) -> Recording {
-    let residuals = rotation_residuals(array, rec, cal);
-    let c = huber_setting("GFCAL_HUBER_C", 2.0) * 1.4826 * median(residuals.iter().map(|x| x.2.abs()).collect());
-    let mut out = rec.clone();
-    for &(i, j, r) in &residuals {
-        out.outputs[(cal.dynamic_index[i], j)] += r.clamp(-c, c) - r;
-    }
-    out
-}
-
-/// A setting of the Huber experiment from the environment (`GFCAL_HUBER_C`: the clip in robust
-/// scales, 2 unless set; `GFCAL_HUBER_ROUNDS`: the pseudo-observation rounds, 2 unless set).
-fn huber_setting(name: &str, default: f64) -> f64 {
-    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
-}
-
-/// A calibration and the one of its Huber pseudo-observations (twice unless `GFCAL_HUBER_ROUNDS`
-/// says otherwise).
-fn with_huber(array: &RecordingArray, rec: &Recording) -> (Calibration, Calibration) {
-    let plain = calibrate(rec, array, &CalibrateSettings::default()).expect("calibrates");
-    let mut huber = plain.clone();
-    for _ in 0..huber_setting("GFCAL_HUBER_ROUNDS", 2.0) as usize {
-        let y = huber_pseudo_observations(array, rec, &huber);
-        huber = calibrate(&y, array, &CalibrateSettings::default()).expect("calibrates the pseudo-observations");
-    }
-    (plain, huber)
+/// A recording calibrated by least squares alone (`plain_least_squares`) and with Huber's weights
+/// on the rotation phase (the default, `selfcal::huber`).
+fn plain_and_robust(array: &RecordingArray, rec: &Recording) -> (Calibration, Calibration) {
+    let plain = CalibrateSettings { plain_least_squares: true, ..CalibrateSettings::default() };
+    let plain = calibrate(rec, array, &plain).expect("calibrates by least squares");
+    let robust = calibrate(rec, array, &CalibrateSettings::default()).expect("calibrates with Huber's weights");
+    (plain, robust)
 }
 
 /// The gyroscope-free rate against the bias-corrected gyroscopes, % RMS, overall and above 20 rad/s:
@@ -1210,24 +1187,23 @@ fn rate_off_gyroscopes(cal: &Calibration) -> (f64, f64) {
     (100.0 * g.relative, 100.0 * (d2 / r2).sqrt())
 }
 
-/// What a fit that down-weights the rotation phase's heavy tail would change, tried with Huber's
-/// pseudo-observations outside the estimator (docs/sample-clocks.md, "What the clocks leave"):
-/// on three simulated recordings of configs/mimu4444_protocol.toml the locations' RMS error
-/// against the truth; on the six real recordings the gyroscope-free rate against the gyroscopes,
-/// the worst spread of a package's sensing points, and the locations' spread over the six
-/// recordings (about 3.5 minutes). The pseudo-observations' printed sigmas are not honest (their
-/// residuals are clipped), so none is printed. `GFCAL_HUBER_C` and `GFCAL_HUBER_ROUNDS` change the
-/// clip (in robust scales, default 2) and the rounds (default 2).
+/// What Huber's weights on the rotation phase change (`selfcal::huber`; docs/sample-clocks.md,
+/// "The robust rotation phase"), least squares alone against the default: on three simulated
+/// recordings of configs/mimu4444_protocol.toml the locations' RMS error against the truth and
+/// their RMS z, the clocks' relative rate offsets and the rate against the truth; on the six real
+/// recordings the gyroscope-free rate against the gyroscopes, the worst spread of a package's
+/// sensing points, and the locations' spread over the six recordings against their printed sigmas
+/// (about 2 minutes).
 #[test]
-#[ignore = "real data, 18 calibrations and 9 simulated ones: prints what Huber pseudo-observations change"]
-fn print_what_huber_pseudo_observations_change() {
+#[ignore = "real data, 12 calibrations and 6 simulated ones: prints what Huber's weights change"]
+fn print_what_the_robust_rotation_phase_changes() {
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
     let cell = matched_cell();
     let n = cell.array.array.len();
     for seed in 1..=3 {
         let truth = config_truth(&cell.array, seed);
         let sim = simulate(&cell.array, &truth, &cell.protocol, &mut trial_rng(seed, 1)).expect("simulated");
-        let (plain, huber) = with_huber(&cell.array, &sim.recording);
+        let (plain, huber) = plain_and_robust(&cell.array, &sim.recording);
         let error_um = |cal: &Calibration| -> Vec<f64> {
             (0..n)
                 .flat_map(|j| (4..PER_ACCEL).map(move |p| (j, p)))
@@ -1250,10 +1226,19 @@ fn print_what_huber_pseudo_observations_change() {
             }
             100.0 * (e / r).sqrt()
         };
+        // The locations' errors over their printed sigmas.
+        let z = |cal: &Calibration| -> Vec<f64> {
+            (0..n)
+                .flat_map(|j| (4..PER_ACCEL).map(move |p| (j, p)))
+                .map(|(j, p)| (cal.fit.params.get(j, p) - truth.get(j, p)) / cal.fit.sigma(j, p))
+                .collect()
+        };
         println!(
-            "simulated {seed}: locations' RMS error {:.1} -> {:.1} um; the clocks' relative rate offsets' RMS error {:.3} -> {:.3} ppm; the rate {:.1}% -> {:.1}% off the truth",
+            "simulated {seed}: locations' RMS error {:.1} -> {:.1} um (RMS z {:.2} -> {:.2}); the clocks' relative rate offsets' RMS error {:.3} -> {:.3} ppm; the rate {:.1}% -> {:.1}% off the truth",
             rms(&error_um(&plain)),
             rms(&error_um(&huber)),
+            rms(&z(&plain)),
+            rms(&z(&huber)),
             rms(&clock_error_ppm(&plain)),
             rms(&clock_error_ppm(&huber)),
             rate_error(&plain),
@@ -1273,10 +1258,10 @@ fn print_what_huber_pseudo_observations_change() {
         }
         worst
     };
-    let (mut before, mut after) = (Vec::new(), Vec::new());
+    let (mut before, mut after, mut sigmas) = (Vec::new(), Vec::new(), Vec::new());
     for k in 1..=6 {
         let rec = Recording::read(&shared_recording(k), &array).expect("recording");
-        let (plain, huber) = with_huber(&array, &rec);
+        let (plain, huber) = plain_and_robust(&array, &rec);
         let ((ra, ra20), (rb, rb20)) = (rate_off_gyroscopes(&plain), rate_off_gyroscopes(&huber));
         println!(
             "recording {k}: rate off the gyroscopes {ra:.1}% -> {rb:.1}% (above 20 rad/s {ra20:.1}% -> {rb20:.1}%); worst spread of a package's sensing points {:.2} -> {:.2} mm",
@@ -1285,6 +1270,7 @@ fn print_what_huber_pseudo_observations_change() {
         );
         before.push(plain.fit.params.clone());
         after.push(huber.fit.params.clone());
+        sigmas.push((plain.fit.clone(), huber.fit.clone()));
     }
     for (name, p) in [("x", 4), ("y", 5), ("z", 6)] {
         let spread_um = |sets: &[SensorSet]| -> f64 {
@@ -1298,10 +1284,27 @@ fn print_what_huber_pseudo_observations_change() {
                     .collect(),
             )
         };
+        // The spread over the six recordings over the RMS of the printed sigmas, RMS over the 24.
+        let over_sigma = |sets: &[SensorSet], fits: &dyn Fn(usize) -> f64| -> f64 {
+            let r: Vec<f64> = (0..n)
+                .map(|j| {
+                    let v: Vec<f64> = sets.iter().map(|s| s.get(j, p)).collect();
+                    let m = v.iter().sum::<f64>() / v.len() as f64;
+                    let sd = (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt();
+                    sd / fits(j)
+                })
+                .collect();
+            rms(&r)
+        };
+        let sigma_rms = |pick: &dyn Fn(&(gfcal::selfcal::fit::Fit, gfcal::selfcal::fit::Fit)) -> f64| -> f64 {
+            (sigmas.iter().map(|f| pick(f).powi(2)).sum::<f64>() / sigmas.len() as f64).sqrt()
+        };
         println!(
-            "locations {name}: spread over the six recordings {:.1} -> {:.1} um (median over 24)",
+            "locations {name}: spread over the six recordings {:.1} -> {:.1} um (median over 24); over the printed sigma {:.2} -> {:.2} (RMS over 24)",
             spread_um(&before),
-            spread_um(&after)
+            spread_um(&after),
+            over_sigma(&before, &|j| sigma_rms(&|f| f.0.sigma(j, p))),
+            over_sigma(&after, &|j| sigma_rms(&|f| f.1.sigma(j, p)))
         );
     }
 }
