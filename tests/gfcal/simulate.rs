@@ -1193,7 +1193,7 @@ fn rate_off_gyroscopes(cal: &Calibration) -> (f64, f64) {
 /// their RMS z, the clocks' relative rate offsets and the rate against the truth; on the six real
 /// recordings the gyroscope-free rate against the gyroscopes, the worst spread of a package's
 /// sensing points, and the locations' spread over the six recordings against their printed sigmas
-/// (about 2 minutes).
+/// (about 6 minutes).
 #[test]
 #[ignore = "real data, 12 calibrations and 6 simulated ones: prints what Huber's weights change"]
 fn print_what_the_robust_rotation_phase_changes() {
