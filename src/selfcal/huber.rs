@@ -50,9 +50,16 @@ pub fn robust_scale(residuals: &DMatrix<f64>, used: &[bool]) -> f64 {
     1.4826 * *m
 }
 
+/// A clip that is not a finite non-negative number (no residual to take a scale from) clips
+/// nothing.
+fn usable(clip: f64) -> f64 {
+    if clip.is_finite() && clip >= 0.0 { clip } else { f64::INFINITY }
+}
+
 /// The pseudo-observations' shift `psi(r) - r` at residuals `r` (samples x accelerometers) of
 /// the outputs as measured, clipped at `clip`; zero where an output is not used.
 pub fn shift(residuals: &DMatrix<f64>, used: &[bool], clip: f64) -> DMatrix<f64> {
+    let clip = usable(clip);
     let n = residuals.ncols();
     DMatrix::from_fn(residuals.nrows(), n, |i, j| {
         let r = residuals[(i, j)];
@@ -63,6 +70,7 @@ pub fn shift(residuals: &DMatrix<f64>, used: &[bool], clip: f64) -> DMatrix<f64>
 /// `d` with only the outputs whose residual lies within the clip used: the data of the
 /// sandwich's bread (module docs).
 pub fn within_clip(d: &DynamicData, residuals: &DMatrix<f64>, clip: f64) -> DynamicData {
+    let clip = usable(clip);
     let n = d.outputs.ncols();
     let used = d.used.iter().enumerate().map(|(k, &u)| u && residuals[(k / n, k % n)].abs() <= clip).collect();
     DynamicData { used, ..d.clone() }
@@ -118,5 +126,8 @@ mod tests {
         let s = shift(&r, &used, 2.0);
         assert_eq!(s, DMatrix::from_row_slice(2, 2, &[0.0, 1.0, -2.0, 0.0]));
         assert_eq!(clipped_share(&r, &used, 2.0), 2.0 / 3.0);
+        // No scale (no finite residual): nothing is clipped, and nothing panics.
+        assert!(robust_scale(&DMatrix::from_element(1, 1, f64::NAN), &[true]).is_nan());
+        assert_eq!(shift(&r, &used, f64::NAN), DMatrix::zeros(2, 2));
     }
 }
