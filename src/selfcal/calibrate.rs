@@ -446,7 +446,12 @@ fn estimate_clocks(
             extra_unknowns_per_sample: TIMING_UNKNOWNS_PER_SAMPLE,
             ..d.clone()
         };
-        let refit = FitSettings { rate_sigmas: false, held_dynamic_variance_m2_s4: held_variance, ..*settings };
+        let refit = FitSettings {
+            rate_sigmas: false,
+            held_dynamic_variance_m2_s4: held_variance,
+            trust_start_unseen: true,
+            ..*settings
+        };
         fit = fit_from(&array.array, stat, Some(&corrected), &refit, Some(&fit)).map_err(ClockFailure::Fit)?;
         fitted_to = corrected;
         fitted_shift.clone_from(&shift);

@@ -58,6 +58,13 @@ pub struct FitSettings {
     /// variance of the outputs as measured, so that clipping the tail does not also shift the
     /// balance between the static and the rotation phase.
     pub held_dynamic_variance_m2_s4: Option<f64>,
+    /// A warm start whose own fit saw every combination beyond the gauge is taken to see them
+    /// still, and the start's check of what the data cannot see (a normal matrix and an
+    /// eigen-decomposition, about a quarter of a warm refit) is skipped; the check at the
+    /// solution is made as always. The clocks' outer iterations set it: their refits' data
+    /// differ from their start's by the timing correction and Huber's shift, not in what the
+    /// motion lets the array see.
+    pub trust_start_unseen: bool,
 }
 
 impl Default for FitSettings {
@@ -68,6 +75,7 @@ impl Default for FitSettings {
             pooled_dynamic_variance: false,
             rate_sigmas: true,
             held_dynamic_variance_m2_s4: None,
+            trust_start_unseen: false,
         }
     }
 }
@@ -278,7 +286,13 @@ pub fn fit_from(
     }
 
     // Combinations the data cannot see beyond the gauge are held where they start.
-    let (constraints, values) = {
+    // (Where the start saw everything, with `trust_start_unseen`, the gauge alone: what `pinned`
+    // gives for an empty unseen space.)
+    let trusted = start
+        .is_some_and(|s| settings.trust_start_unseen && s.unseen.is_empty() && !s.unseen_parameters.iter().any(|&u| u));
+    let (constraints, values) = if trusted {
+        (gauge_constraints.clone(), DVector::zeros(gauge_constraints.nrows()))
+    } else {
         let normal =
             normal_equations(array, stat, dynamic.filter(|_| with_dynamic), settings, &weights, &state, &active);
         let seen = unseen(&normal.h, &gauge_constraints, &active);

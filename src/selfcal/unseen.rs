@@ -114,7 +114,7 @@ pub fn unseen(h: &DMatrix<f64>, constraints: &DMatrix<f64>, active: &[bool]) -> 
     }
     let scale: Vec<f64> = idx.iter().map(|&i| h[(i, i)].max(1e-300).sqrt()).collect();
     let s = DMatrix::from_fn(m, m, |a, b| h[(idx[a], idx[b])] / (scale[a] * scale[b]));
-    let max = SymmetricEigen::new(s.clone()).eigenvalues.iter().cloned().fold(0.0, f64::max);
+    let max = s.symmetric_eigenvalues().iter().cloned().fold(0.0, f64::max);
     // The directions the gauge leaves free, in scaled coordinates: C D^-1 v = 0.
     let c = DMatrix::from_fn(constraints.nrows(), m, |r, a| constraints[(r, idx[a])] / scale[a]);
     let q = if c.nrows() == 0 {
