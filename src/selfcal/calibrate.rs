@@ -14,7 +14,7 @@ use nalgebra::{DMatrix, Vector3};
 use super::clock::{SampleClock, fit_packages, half_differences};
 use super::data::{DynamicData, StaticData};
 use super::filter::{accelerometer_time_constants, filter_corrected};
-use super::fit::{Fit, FitError, FitSettings, fit, fit_from, pooled_dynamic_variance};
+use super::fit::{Fit, FitError, FitSettings, check_solution, fit, fit_from, pooled_dynamic_variance};
 use super::huber::{self, HuberSummary};
 use super::misfit;
 use super::model::{PER_ACCEL, sensors};
@@ -422,6 +422,9 @@ fn estimate_clocks(
     let mut huber: Option<HuberSummary> = None;
     let mut previous_params = fit0.params.clone();
     let mut held_variance: Option<f64> = None;
+    // The sigmas that scale Huber's stopping rule (the refit's where they start), per
+    // accelerometer parameter.
+    let mut stop_sigma: Vec<f64> = Vec::new();
     // The outer iterations run until the rotation phase's residual settles (a relative change
     // under OUTER_TOLERANCE), at most MAX_OUTER_ITERATIONS. With the dynamic variance pooled
     // (`selfcal::fit`) each one lowers the misfit; with a component per accelerometer they ran
@@ -450,6 +453,7 @@ fn estimate_clocks(
             rate_sigmas: false,
             held_dynamic_variance_m2_s4: held_variance,
             trust_start_unseen: true,
+            solution_check: false,
             ..*settings
         };
         fit = fit_from(&array.array, stat, Some(&corrected), &refit, Some(&fit)).map_err(ClockFailure::Fit)?;
@@ -468,10 +472,18 @@ fn estimate_clocks(
             continue;
         }
         // Huber's iterations stop when no parameter moved by HUBER_TOLERANCE_SIGMA of its
-        // sigma (the refit's own) over the last one.
+        // sigma (the refit's own where they start: the refits leave the covariance out) over the
+        // last one.
+        if stop_sigma.is_empty() {
+            check_solution(&array.array, stat, Some(&fitted_to), settings, &mut fit).map_err(ClockFailure::Fit)?;
+            stop_sigma = (0..array.array.len())
+                .flat_map(|j| (0..PER_ACCEL).map(move |p| (j, p)))
+                .map(|(j, p)| fit.sigma(j, p))
+                .collect();
+        }
         let moved_sigma = (0..array.array.len())
             .flat_map(|j| (0..PER_ACCEL).map(move |p| (j, p)))
-            .map(|(j, p)| (fit.params.get(j, p) - previous_params.get(j, p)).abs() / fit.sigma(j, p))
+            .map(|(j, p)| (fit.params.get(j, p) - previous_params.get(j, p)).abs() / stop_sigma[PER_ACCEL * j + p])
             .filter(|v| v.is_finite())
             .fold(0.0_f64, f64::max);
         previous_params.clone_from(&fit.params);
@@ -502,6 +514,8 @@ fn estimate_clocks(
         h.robust_scale_m_s2 = scale;
         h.clipped_share = huber::clipped_share(&residual, &d.used, clip);
     }
+    // The refits left their solution's check out (`FitSettings::solution_check`).
+    check_solution(&array.array, stat, Some(&fitted_to), settings, &mut fit).map_err(ClockFailure::Fit)?;
     // The residual as measured, for every figure reported (the pseudo-observations' residual is
     // what the weights made of it).
     let measured = DynamicData { outputs: &fitted_to.outputs - &fitted_shift, ..fitted_to.clone() };

@@ -65,6 +65,12 @@ pub struct FitSettings {
     /// differ from their start's by the timing correction and Huber's shift, not in what the
     /// motion lets the array see.
     pub trust_start_unseen: bool,
+    /// Check the solution (covariance, null directions, unseen space). Without it a warm fit
+    /// carries its start's null directions and unseen space and has no covariance (NaN), and
+    /// [`check_solution`] adds them later: the clocks' outer iterations need them only at
+    /// their end (each check is a normal matrix and three eigen-decompositions, about a quarter
+    /// of a warm refit).
+    pub solution_check: bool,
 }
 
 impl Default for FitSettings {
@@ -76,6 +82,7 @@ impl Default for FitSettings {
             rate_sigmas: true,
             held_dynamic_variance_m2_s4: None,
             trust_start_unseen: false,
+            solution_check: true,
         }
     }
 }
@@ -365,23 +372,42 @@ pub fn fit_from(
         }
     }
 
-    // Covariance and null directions at the solution.
-    let normal = normal_equations(array, stat, dynamic.filter(|_| with_dynamic), settings, &weights, &state, &active);
-    let (null_directions, smallest_scaled_eigenvalues) = count_null(&normal.h, &active);
-    let mut seen = unseen(&normal.h, &gauge_constraints, &active);
-    let (all_constraints, _) = pinned(&gauge_constraints, &seen, &state);
-    if !seen.is_empty() {
-        // Beside the unseen space (to rounding), a parameter whose variance is not positive is
-        // not seen either.
-        let mut probe = vec![false; active.len()];
-        let cov = constrained_inverse(&normal.h, &all_constraints, &active, &probe, true)?;
-        for i in 0..active.len() {
-            probe[i] = active[i] && !(cov[(i, i)] > 0.0);
-            seen.parameters[i] |= probe[i];
+    // Covariance and null directions at the solution (or, without `solution_check`, the start's
+    // unseen space and null count carried, and no covariance: `check_solution` adds them).
+    let check = if settings.solution_check || start.is_none() {
+        solution_check(
+            array,
+            stat,
+            dynamic.filter(|_| with_dynamic),
+            settings,
+            &weights,
+            &state,
+            &active,
+            &gauge_constraints,
+        )?
+    } else {
+        let s = start.map(|s| {
+            (s.null_directions, s.smallest_scaled_eigenvalues.clone(), s.unseen.clone(), s.unseen_parameters.clone())
+        });
+        let (null_directions, smallest_scaled_eigenvalues, unseen, unseen_parameters) = s.unwrap_or_default();
+        SolutionCheck {
+            covariance: DMatrix::from_element(active.len(), active.len(), f64::NAN),
+            null_directions,
+            smallest_scaled_eigenvalues,
+            unseen,
+            unseen_parameters,
         }
-    }
-    let covariance = constrained_inverse(&normal.h, &all_constraints, &active, &seen.parameters, false)?;
-    let omega_sigma_rad_s = match dynamic.filter(|_| with_dynamic && settings.rate_sigmas) {
+    };
+    let SolutionCheck {
+        covariance,
+        null_directions,
+        smallest_scaled_eigenvalues,
+        unseen: unseen_combinations,
+        unseen_parameters,
+    } = check;
+    let omega_sigma_rad_s = match dynamic
+        .filter(|_| with_dynamic && settings.rate_sigmas && (settings.solution_check || start.is_none()))
+    {
         Some(d) => {
             track::rate_sigmas(array, d, &weights.dynamic_w, &state.params, &state.motion, reference_rate, &covariance)
         }
@@ -406,8 +432,8 @@ pub fn fit_from(
         locations_identified: with_dynamic,
         gauge,
         null_directions,
-        unseen: seen.combinations,
-        unseen_parameters: seen.parameters,
+        unseen: unseen_combinations,
+        unseen_parameters,
         static_chi2_dof: chi2 / dof,
         static_residual_rms_m_s2,
         static_variance_factor: static_factor,
@@ -419,6 +445,91 @@ pub fn fit_from(
         trace,
         smallest_scaled_eigenvalues,
     })
+}
+
+/// What [`fit_from`] finds at its solution beside the parameters: the covariance, the null
+/// directions and what the data cannot see beyond the gauge.
+struct SolutionCheck {
+    covariance: DMatrix<f64>,
+    null_directions: usize,
+    smallest_scaled_eigenvalues: Vec<f64>,
+    unseen: Vec<Combination>,
+    unseen_parameters: Vec<bool>,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn solution_check(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: Option<&DynamicData>,
+    settings: &FitSettings,
+    weights: &Weights,
+    state: &State,
+    active: &[bool],
+    gauge_constraints: &DMatrix<f64>,
+) -> Result<SolutionCheck, FitError> {
+    let normal = normal_equations(array, stat, dynamic, settings, weights, state, active);
+    let (null_directions, smallest_scaled_eigenvalues) = count_null(&normal.h, active);
+    let mut seen = unseen(&normal.h, gauge_constraints, active);
+    let (all_constraints, _) = pinned(gauge_constraints, &seen, state);
+    if !seen.is_empty() {
+        // Beside the unseen space (to rounding), a parameter whose variance is not positive is
+        // not seen either.
+        let mut probe = vec![false; active.len()];
+        let cov = constrained_inverse(&normal.h, &all_constraints, active, &probe, true)?;
+        for i in 0..active.len() {
+            probe[i] = active[i] && !(cov[(i, i)] > 0.0);
+            seen.parameters[i] |= probe[i];
+        }
+    }
+    let covariance = constrained_inverse(&normal.h, &all_constraints, active, &seen.parameters, false)?;
+    Ok(SolutionCheck {
+        covariance,
+        null_directions,
+        smallest_scaled_eigenvalues,
+        unseen: seen.combinations,
+        unseen_parameters: seen.parameters,
+    })
+}
+
+/// The check [`fit_from`] skips without `solution_check`, made at `fit`'s solution: its
+/// covariance, null directions and unseen space, with the weights the fit stores (its
+/// variance components; `dynamic` the data it was fitted to).
+pub fn check_solution(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: Option<&DynamicData>,
+    settings: &FitSettings,
+    fit: &mut Fit,
+) -> Result<(), FitError> {
+    let (n, poses) = (array.len(), stat.means.nrows());
+    let with_dynamic = dynamic.is_some_and(|d| d.samples() > 0);
+    let active: Vec<bool> =
+        (0..PER_ACCEL * n + 2 * poses).map(|i| with_dynamic || i >= PER_ACCEL * n || i % PER_ACCEL < 4).collect();
+    let weights = Weights {
+        static_w: DMatrix::from_fn(poses, n, |p, j| {
+            stat.counts[p] as f64 / (stat.sigma[j].powi(2) * fit.static_variance_factor)
+        }),
+        dynamic_w: fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect(),
+    };
+    let state = State { params: fit.params.clone(), up: fit.up.clone(), motion: fit.motion.clone() };
+    let gauge_constraints = fit.gauge.constraints(array, with_dynamic, 2 * poses);
+    let check = solution_check(
+        array,
+        stat,
+        dynamic.filter(|_| with_dynamic),
+        settings,
+        &weights,
+        &state,
+        &active,
+        &gauge_constraints,
+    )?;
+    fit.covariance = check.covariance;
+    fit.null_directions = check.null_directions;
+    fit.smallest_scaled_eigenvalues = check.smallest_scaled_eigenvalues;
+    fit.unseen = check.unseen;
+    fit.unseen_parameters = check.unseen_parameters;
+    Ok(())
 }
 
 /// The cold start of [`fit_from`]: the static phase alone (locations held), then the motion of
