@@ -64,9 +64,10 @@ fn hubers_weights_bring_the_simulated_locations_closer_to_the_truth() {
 }
 
 /// Where Huber's weights stop paying: the matched protocol with its rotation phase cut to 30, 50,
-/// 75 and 100 s (20 poses kept), seeds 1-4 (`GFCAL_HUBER_SEEDS` to change the count), each
-/// calibrated by least squares alone and with Huber's weights; prints the locations' RMS error
-/// against the truth and their RMS z. About 6 minutes on 2 cores. Measured on 2026-11-28 in
+/// 75 and 100 s (`GFCAL_HUBER_LENGTHS=40,100` to choose) and its 20 poses kept (`GFCAL_HUBER_POSES`
+/// to change), seeds 1-4 (`GFCAL_HUBER_SEEDS` to change the count), each calibrated by least
+/// squares alone and with Huber's weights; prints the locations' RMS error against the truth and
+/// their RMS z. About 8 minutes on 2 cores. Measured on 2026-11-28 in
 /// `results/mimu4444/EXPECTATIONS.md` ("Where Huber's weights stop paying").
 #[test]
 #[ignore = "a study: prints Huber's gain over least squares against the rotation phase's length"]
@@ -75,9 +76,17 @@ fn print_hubers_gain_against_the_rotation_phases_length() {
     let base = matched_cell();
     let array = &base.array;
     let plain_settings = CalibrateSettings { plain_least_squares: true, ..CalibrateSettings::default() };
-    for dynamic_s in [30.0, 50.0, 75.0, 100.0] {
+    let lengths: Vec<f64> = std::env::var("GFCAL_HUBER_LENGTHS")
+        .ok()
+        .map(|s| s.split(',').filter_map(|v| v.trim().parse().ok()).collect())
+        .unwrap_or_else(|| vec![30.0, 50.0, 75.0, 100.0]);
+    let poses: usize =
+        std::env::var("GFCAL_HUBER_POSES").ok().and_then(|s| s.parse().ok()).unwrap_or(base.protocol.poses);
+    println!("{poses} poses");
+    for dynamic_s in lengths {
         let mut protocol = base.protocol.clone();
         protocol.dynamic_s = dynamic_s;
+        protocol.poses = poses;
         let mut gains = Vec::new();
         for seed in 1..=seeds {
             let truth = config_truth(array, seed);

@@ -423,3 +423,38 @@ fn the_robust_covariance_is_the_models_where_the_residuals_are_white() {
     );
     assert!((0.9..1.1).contains(&median), "median {median}");
 }
+
+/// The clocks' refits skip two checks of what the data cannot see (`FitSettings::
+/// trust_start_unseen`, `solution_check`) and make the second at the end (`fit::check_solution`).
+/// Against the refit that makes both, from the same warm start on a simulated recording: the same
+/// parameters and motion bit for bit (the start saw everything but the gauge, so trusting it pins
+/// nothing more), no covariance before the check, and after it the same null directions, unseen
+/// space and covariance (to 1e-9 of each variance: the check rebuilds the weights from the stored
+/// sigmas).
+#[test]
+fn a_refit_whose_solution_is_checked_at_the_end_equals_one_checked_at_once() {
+    use gfcal::selfcal::calibrate::prepare_dynamic;
+    use gfcal::selfcal::fit::{FitSettings, check_solution, fit_from};
+    let array = super::simulate::without_clocks(&mimu_array());
+    let t = truth(&array, 3);
+    let sim = simulate_one(&array, &t, 3);
+    let cal = calibrate(&sim.recording, &array, &CalibrateSettings::default()).expect("calibrates");
+    assert!(cal.fit.unseen.is_empty(), "the start sees everything but the gauge");
+    let d = prepare_dynamic(&sim.recording, &cal.segmentation, false, cal.gyro_bias_rad_s).data.expect("rotation");
+    let settings = FitSettings { rate_sigmas: false, ..FitSettings::default() };
+    let at_once = fit_from(&array.array, &cal.static_data, Some(&d), &settings, Some(&cal.fit)).expect("refit");
+    let deferred = FitSettings { trust_start_unseen: true, solution_check: false, ..settings };
+    let mut later = fit_from(&array.array, &cal.static_data, Some(&d), &deferred, Some(&cal.fit)).expect("refit");
+    assert_eq!(later.params, at_once.params);
+    assert_eq!(later.up, at_once.up);
+    assert_eq!(later.motion, at_once.motion);
+    assert!(later.covariance.iter().all(|v| v.is_nan()), "no covariance before the check");
+    check_solution(&array.array, &cal.static_data, Some(&d), &settings, &mut later).expect("checked");
+    assert_eq!(later.null_directions, at_once.null_directions);
+    assert_eq!(later.unseen_parameters, at_once.unseen_parameters);
+    assert!(later.unseen.is_empty() && at_once.unseen.is_empty());
+    for i in 0..at_once.covariance.nrows() {
+        let (a, b) = (later.covariance[(i, i)], at_once.covariance[(i, i)]);
+        assert!((a - b).abs() <= 1e-9 * b.abs(), "variance {i}: {a} against {b}");
+    }
+}
