@@ -65,14 +65,17 @@ fn hubers_weights_bring_the_simulated_locations_closer_to_the_truth() {
 
 /// Where Huber's weights stop paying: the matched protocol with its rotation phase cut to 30, 50,
 /// 75 and 100 s (`GFCAL_HUBER_LENGTHS=40,100` to choose) and its 20 poses kept (`GFCAL_HUBER_POSES`
-/// to change), seeds 1-4 (`GFCAL_HUBER_SEEDS` to change the count), each calibrated by least
+/// to change), seeds 1-4 (`GFCAL_HUBER_SEEDS=11,12` to choose), each calibrated by least
 /// squares alone and with Huber's weights; prints the locations' RMS error against the truth and
 /// their RMS z. About 8 minutes on 2 cores. Measured on 2026-11-28 in
 /// `results/mimu4444/EXPECTATIONS.md` ("Where Huber's weights stop paying").
 #[test]
 #[ignore = "a study: prints Huber's gain over least squares against the rotation phase's length"]
 fn print_hubers_gain_against_the_rotation_phases_length() {
-    let seeds: u64 = std::env::var("GFCAL_HUBER_SEEDS").ok().and_then(|s| s.parse().ok()).unwrap_or(4);
+    let seeds: Vec<u64> = std::env::var("GFCAL_HUBER_SEEDS")
+        .ok()
+        .map(|s| s.split(',').filter_map(|v| v.trim().parse().ok()).collect())
+        .unwrap_or_else(|| (1..=4).collect());
     let base = matched_cell();
     let array = &base.array;
     let plain_settings = CalibrateSettings { plain_least_squares: true, ..CalibrateSettings::default() };
@@ -88,7 +91,7 @@ fn print_hubers_gain_against_the_rotation_phases_length() {
         protocol.dynamic_s = dynamic_s;
         protocol.poses = poses;
         let mut gains = Vec::new();
-        for seed in 1..=seeds {
+        for &seed in &seeds {
             let truth = config_truth(array, seed);
             let sim = simulate(array, &truth, &protocol, &mut trial_rng(seed, 1)).expect("simulated");
             let plain = calibrate(&sim.recording, array, &plain_settings).expect("calibrates");
