@@ -197,6 +197,26 @@ pub(super) struct Weights {
     pub(super) dynamic_w: Vec<f64>,
 }
 
+impl Weights {
+    /// The weights a fit stores: its static variance factor and its dynamic sigmas (each weight
+    /// rebuilt from its sigma, to about 1e-16 of itself).
+    pub(super) fn stored_in(fit: &Fit, stat: &StaticData) -> Self {
+        let (poses, n) = (stat.means.nrows(), fit.params.len());
+        Self {
+            static_w: DMatrix::from_fn(poses, n, |p, j| {
+                stat.counts[p] as f64 / (stat.sigma[j].powi(2) * fit.static_variance_factor)
+            }),
+            dynamic_w: fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect(),
+        }
+    }
+}
+
+/// The parameters a fit estimates (accelerometer parameters, then the poses' tangents): every
+/// one, but the locations without a rotation phase.
+fn active_parameters(n: usize, poses: usize, with_dynamic: bool) -> Vec<bool> {
+    (0..PER_ACCEL * n + 2 * poses).map(|i| with_dynamic || i >= PER_ACCEL * n || i % PER_ACCEL < 4).collect()
+}
+
 /// The rotation phase's one dynamic variance, m^2/s^4: `sum_j c_j r_j^2 / sum_j c_j / L_j`, the
 /// residuals' sum of squares over the phase's degrees of freedom (`selfcal::misfit`); `None`
 /// where it cannot be formed. Used where [`FitSettings::pooled_dynamic_variance`] asks for it or
@@ -254,15 +274,7 @@ pub fn fit_from(
     }
     let reference_rate = dynamic.and_then(|d| d.reference_rate_rad_s.as_ref()).is_some();
     let gauge = Gauge::new(array, with_dynamic, reference_rate);
-    let dim = PER_ACCEL * n + 2 * poses;
-    let mut active = vec![true; dim];
-    if !with_dynamic {
-        for j in 0..n {
-            for p in 4..7 {
-                active[PER_ACCEL * j + p] = false;
-            }
-        }
-    }
+    let active = active_parameters(n, poses, with_dynamic);
     let gauge_constraints = gauge.constraints(array, with_dynamic, 2 * poses);
 
     let mut state = State {
@@ -504,14 +516,8 @@ pub fn check_solution(
 ) -> Result<(), FitError> {
     let (n, poses) = (array.len(), stat.means.nrows());
     let with_dynamic = dynamic.is_some_and(|d| d.samples() > 0);
-    let active: Vec<bool> =
-        (0..PER_ACCEL * n + 2 * poses).map(|i| with_dynamic || i >= PER_ACCEL * n || i % PER_ACCEL < 4).collect();
-    let weights = Weights {
-        static_w: DMatrix::from_fn(poses, n, |p, j| {
-            stat.counts[p] as f64 / (stat.sigma[j].powi(2) * fit.static_variance_factor)
-        }),
-        dynamic_w: fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect(),
-    };
+    let active = active_parameters(n, poses, with_dynamic);
+    let weights = Weights::stored_in(fit, stat);
     let state = State { params: fit.params.clone(), up: fit.up.clone(), motion: fit.motion.clone() };
     let gauge_constraints = fit.gauge.constraints(array, with_dynamic, 2 * poses);
     let check = solution_check(

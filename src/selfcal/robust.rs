@@ -57,12 +57,7 @@ pub fn robust_covariance_with_bread(
     let poses = stat.means.nrows();
     let dim = na + 2 * poses;
     let active = vec![true; dim];
-    let weights = Weights {
-        static_w: DMatrix::from_fn(poses, n, |p, j| {
-            stat.counts[p] as f64 / (stat.sigma[j].powi(2) * fit.static_variance_factor)
-        }),
-        dynamic_w: fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect(),
-    };
+    let weights = Weights::stored_in(fit, stat);
     let state = State { params: fit.params.clone(), up: fit.up.clone(), motion: fit.motion.clone() };
     // K from the information at the fit's solution with its stored weights (the fit's own
     // covariance to about 1e-6 of a sigma: the weights go through the stored sigmas).
