@@ -99,9 +99,33 @@ fn print_hubers_gain_against_the_rotation_phases_length() {
             let clocked = plain.clocks.is_some() && robust.clocks.is_some();
             let (e_plain, z_plain) = location_errors(&plain, &truth);
             let (e_robust, z_robust) = location_errors(&robust, &truth);
+            // The gyroscope-free rate against the true rate, %.
+            let rate_error = |cal: &Calibration| -> f64 {
+                let (mut e, mut r) = (0.0, 0.0);
+                for (k, &i) in cal.dynamic_index.iter().enumerate() {
+                    e += (cal.fit.motion[k].omega_rad_s - sim.motion[i].omega_rad_s).norm_squared();
+                    r += sim.motion[i].omega_rad_s.norm_squared();
+                }
+                100.0 * (e / r).sqrt()
+            };
+            // The location furthest from the truth with Huber's weights: accelerometer (1-based),
+            // axis, error (um) and z.
+            let (worst_j, worst_p, worst_um, worst_z) = (0..truth.len())
+                .flat_map(|j| (4..PER_ACCEL).map(move |p| (j, p)))
+                .map(|(j, p)| {
+                    let e = robust.fit.params.get(j, p) - truth.get(j, p);
+                    (j + 1, p, e * 1e6, e / robust.fit.sigma(j, p))
+                })
+                .fold((0, 0, 0.0_f64, 0.0_f64), |a, b| if b.2.abs() > a.2.abs() { b } else { a });
             println!(
-                "rotation {dynamic_s:.0} s, seed {seed}: locations' RMS error least squares {e_plain:.1} um (RMS z {z_plain:.2}), Huber {e_robust:.1} um (RMS z {z_robust:.2}); gain {:.2}{}",
+                "  worst location (Huber): accelerometer {worst_j}, parameter {worst_p}: {worst_um:.1} um, z {worst_z:.1}"
+            );
+            println!(
+                "rotation {dynamic_s:.0} s, seed {seed}: locations' RMS error least squares {e_plain:.1} um (RMS z {z_plain:.2}), Huber {e_robust:.1} um (RMS z {z_robust:.2}); gain {:.2}; the rate {:.1}% and {:.1}% off the truth; static chi2/dof {:.2}{}",
                 e_plain / e_robust,
+                rate_error(&plain),
+                rate_error(&robust),
+                robust.fit.static_chi2_dof,
                 if clocked { "" } else { " (clocks not fitted)" }
             );
             gains.push(e_plain / e_robust);
