@@ -386,8 +386,16 @@ pub fn fit_from(
 
     // Covariance and null directions at the solution (or, without `solution_check`, the start's
     // unseen space and null count carried, and no covariance: `check_solution` adds them).
-    let check = if settings.solution_check || start.is_none() {
-        solution_check(
+    let carried = start.filter(|_| !settings.solution_check);
+    let check = match carried {
+        Some(s) => SolutionCheck {
+            covariance: DMatrix::from_element(active.len(), active.len(), f64::NAN),
+            null_directions: s.null_directions,
+            smallest_scaled_eigenvalues: s.smallest_scaled_eigenvalues.clone(),
+            unseen: s.unseen.clone(),
+            unseen_parameters: s.unseen_parameters.clone(),
+        },
+        None => solution_check(
             array,
             stat,
             dynamic.filter(|_| with_dynamic),
@@ -396,19 +404,7 @@ pub fn fit_from(
             &state,
             &active,
             &gauge_constraints,
-        )?
-    } else {
-        let s = start.map(|s| {
-            (s.null_directions, s.smallest_scaled_eigenvalues.clone(), s.unseen.clone(), s.unseen_parameters.clone())
-        });
-        let (null_directions, smallest_scaled_eigenvalues, unseen, unseen_parameters) = s.unwrap_or_default();
-        SolutionCheck {
-            covariance: DMatrix::from_element(active.len(), active.len(), f64::NAN),
-            null_directions,
-            smallest_scaled_eigenvalues,
-            unseen,
-            unseen_parameters,
-        }
+        )?,
     };
     let SolutionCheck {
         covariance,
@@ -417,9 +413,7 @@ pub fn fit_from(
         unseen: unseen_combinations,
         unseen_parameters,
     } = check;
-    let omega_sigma_rad_s = match dynamic
-        .filter(|_| with_dynamic && settings.rate_sigmas && (settings.solution_check || start.is_none()))
-    {
+    let omega_sigma_rad_s = match dynamic.filter(|_| with_dynamic && settings.rate_sigmas && carried.is_none()) {
         Some(d) => {
             track::rate_sigmas(array, d, &weights.dynamic_w, &state.params, &state.motion, reference_rate, &covariance)
         }

@@ -6,7 +6,7 @@ use gfcal::selfcal::calibrate::{CalibrateSettings, Calibration, calibrate};
 use gfcal::selfcal::model::{PER_ACCEL, SensorSet};
 use gfcal::selfcal::simulate::simulate;
 
-use super::simulate::{config_truth, matched_cell};
+use super::simulate::{config_truth, matched_cell, rate_error_percent};
 
 /// The locations' RMS error against `truth` (um) and their RMS z (error over printed sigma).
 fn location_errors(cal: &Calibration, truth: &SensorSet) -> (f64, f64) {
@@ -99,15 +99,7 @@ fn print_hubers_gain_against_the_rotation_phases_length() {
             let clocked = plain.clocks.is_some() && robust.clocks.is_some();
             let (e_plain, z_plain) = location_errors(&plain, &truth);
             let (e_robust, z_robust) = location_errors(&robust, &truth);
-            // The gyroscope-free rate against the true rate, %.
-            let rate_error = |cal: &Calibration| -> f64 {
-                let (mut e, mut r) = (0.0, 0.0);
-                for (k, &i) in cal.dynamic_index.iter().enumerate() {
-                    e += (cal.fit.motion[k].omega_rad_s - sim.motion[i].omega_rad_s).norm_squared();
-                    r += sim.motion[i].omega_rad_s.norm_squared();
-                }
-                100.0 * (e / r).sqrt()
-            };
+            let rate_error = |cal: &Calibration| rate_error_percent(cal, &sim);
             // The location furthest from the truth with Huber's weights: accelerometer (1-based),
             // axis, error (um) and z.
             let (worst_j, worst_p, worst_um, worst_z) = (0..truth.len())

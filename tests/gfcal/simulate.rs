@@ -108,6 +108,17 @@ fn repo() -> std::path::PathBuf {
     std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The gyroscope-free rate of a calibration of `sim` against the simulator's true rate: the
+/// relative RMS difference over the rotation phase's samples, %.
+pub fn rate_error_percent(cal: &Calibration, sim: &Simulated) -> f64 {
+    let (mut e, mut r) = (0.0, 0.0);
+    for (k, &i) in cal.dynamic_index.iter().enumerate() {
+        e += (cal.fit.motion[k].omega_rad_s - sim.motion[i].omega_rad_s).norm_squared();
+        r += sim.motion[i].omega_rad_s.norm_squared();
+    }
+    100.0 * (e / r).sqrt()
+}
+
 /// The matched protocol of the shipped config (configs/mimu4444_protocol.toml), with its array.
 pub fn matched_cell() -> ProtocolCell {
     let cfg = McConfig::load(&repo().join("configs/mimu4444_protocol.toml")).expect("shipped config");
@@ -1217,15 +1228,7 @@ fn print_what_the_robust_rotation_phase_changes() {
             let tru = gfcal::selfcal::timing::relative_rates(&sim.clocks);
             est.iter().zip(&tru).filter_map(|(e, t)| Some((e.as_ref()? - t.as_ref()?) * 1e6)).collect()
         };
-        // The gyroscope-free rate against the true rate, %.
-        let rate_error = |cal: &Calibration| -> f64 {
-            let (mut e, mut r) = (0.0, 0.0);
-            for (k, &i) in cal.dynamic_index.iter().enumerate() {
-                e += (cal.fit.motion[k].omega_rad_s - sim.motion[i].omega_rad_s).norm_squared();
-                r += sim.motion[i].omega_rad_s.norm_squared();
-            }
-            100.0 * (e / r).sqrt()
-        };
+        let rate_error = |cal: &Calibration| rate_error_percent(cal, &sim);
         // The locations' errors over their printed sigmas.
         let z = |cal: &Calibration| -> Vec<f64> {
             (0..n)
