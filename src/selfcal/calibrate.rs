@@ -177,7 +177,8 @@ pub fn calibrate(
     // With the clocks, the fit without them is only the start of their refits (and the residual
     // before them): three Gauss-Newton iterations a round do (recording 4: 1.70 -> 1.0 s, every
     // parameter of the six calibrations within 0.09 sigma, `docs/performance.md`). Where the
-    // clocks are not resolved it is run on to convergence from there.
+    // clocks are not resolved it is run again, uncapped, from the same cold start: a warm refit
+    // from the capped fit ends elsewhere (real recording 4: 0.1 sigma from the cold fit's end).
     let clocked = dynamic.is_some() && array.has_sample_clocks();
     let start_settings = FitSettings {
         max_iterations: if clocked {
@@ -194,11 +195,9 @@ pub fn calibrate(
             let robust = !settings.plain_least_squares;
             match estimate_clocks(rec, array, &seg, &stat, d, &settings.fit, &fit, robust) {
                 Ok((f, c)) => (f, Some(c), None),
-                Err(ClockFailure::NotResolved(why)) => (
-                    fit_from(&array.array, &stat, dynamic, &settings.fit, Some(&fit)).map_err(fit_error)?,
-                    None,
-                    Some(why),
-                ),
+                Err(ClockFailure::NotResolved(why)) => {
+                    (super::fit::fit(&array.array, &stat, dynamic, &settings.fit).map_err(fit_error)?, None, Some(why))
+                }
                 Err(ClockFailure::Fit(source)) => return Err(fit_error(source)),
             }
         }
