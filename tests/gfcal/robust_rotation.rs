@@ -130,7 +130,8 @@ fn print_hubers_gain_against_the_rotation_phases_length() {
 /// Where a calibration's location error lies against its printed covariance: one simulated
 /// recording of the matched protocol (`GFCAL_HUBER_SEEDS`, default 13; `GFCAL_HUBER_POSES`,
 /// default 6; `GFCAL_HUBER_LENGTHS`, default 40 s: the recording whose locations were 163 um off
-/// with RMS z 4.4), calibrated with Huber's weights. Prints the error's Mahalanobis distance under
+/// with RMS z 4.4), calibrated with Huber's weights (`GFCAL_LEAST_SQUARES=1`: by least squares
+/// alone). Prints the error's Mahalanobis distance under
 /// the locations' printed covariance (against its degrees of freedom), how the error and that
 /// distance split over the covariance's eigen-directions (largest variance first), and the
 /// direction that carries most of the distance, accelerometer by accelerometer.
@@ -151,11 +152,16 @@ fn print_where_the_location_error_lies_against_the_printed_covariance() {
     let mut protocol = base.protocol.clone();
     protocol.poses = list("GFCAL_HUBER_POSES", "6")[0] as usize;
     protocol.dynamic_s = list("GFCAL_HUBER_LENGTHS", "40")[0];
+    let least_squares = std::env::var("GFCAL_LEAST_SQUARES").is_ok_and(|v| v == "1");
+    if least_squares {
+        println!("least squares alone (GFCAL_LEAST_SQUARES=1)");
+    }
     for seed in list("GFCAL_HUBER_SEEDS", "13") {
         let seed = seed as u64;
         let truth = config_truth(array, seed);
         let sim = simulate(array, &truth, &protocol, &mut trial_rng(seed, 1)).expect("simulated");
-        let cal = calibrate(&sim.recording, array, &CalibrateSettings::default()).expect("calibrates");
+        let settings = CalibrateSettings { plain_least_squares: least_squares, ..CalibrateSettings::default() };
+        let cal = calibrate(&sim.recording, array, &settings).expect("calibrates");
         let idx: Vec<(usize, usize)> = (0..n).flat_map(|j| (4..PER_ACCEL).map(move |p| (j, p))).collect();
         let m = idx.len();
         let c = DMatrix::from_fn(m, m, |a, b| {
