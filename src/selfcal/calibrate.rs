@@ -19,7 +19,7 @@ use super::huber::{self, HuberSummary};
 use super::misfit;
 use super::model::{PER_ACCEL, sensors};
 use super::recording::Recording;
-use super::robust::{robust_covariance, robust_covariance_with_bread};
+use super::robust::robust_covariance_with_bread;
 use super::segment::{DetectorSettings, Interval, Segmentation, segment};
 use super::tension::{StaticTension, tension_at};
 use super::timing::{
@@ -538,17 +538,15 @@ fn estimate_clocks(
     fit.dynamic_chi2_dof = misfit::chi2_dof(&measured, &rms, &stat.sigma);
     fit.dynamic_residual_rms_m_s2 = rms;
     // The parameters' covariance from the scores' spread over blocks of samples: the residual
-    // the clock model leaves is not white (selfcal::robust). With Huber's weights the bread counts
-    // the outputs within the clip only (`selfcal::huber`). The rate's sigmas follow it.
+    // the clock model leaves is not white (selfcal::robust). With Huber's weights the bread
+    // weighs each output by the chance that its residual falls within the clip under its
+    // accelerometer's noise (`selfcal::huber`). The rate's sigmas follow it.
     let bread = huber.as_ref().map(|h| {
         let residual = misfit::residuals(&array.array, &fit.params, &measured, &fit.motion);
-        huber::within_clip(&fitted_to, &residual, h.clip_m_s2)
+        huber::expected_derivative(&residual, &fitted_to.used, h.clip_m_s2, &stat.sigma)
     });
-    fit.covariance = match bread {
-        Some(bread) => robust_covariance_with_bread(&array.array, stat, &fitted_to, &bread, settings, &fit),
-        None => robust_covariance(&array.array, stat, &fitted_to, settings, &fit),
-    }
-    .map_err(ClockFailure::Fit)?;
+    fit.covariance = robust_covariance_with_bread(&array.array, stat, &fitted_to, bread.as_deref(), settings, &fit)
+        .map_err(ClockFailure::Fit)?;
     fit.omega_sigma_rad_s = crate::selfcal::track::rate_sigmas(
         &array.array,
         &fitted_to,

@@ -195,6 +195,9 @@ pub(super) struct Normal {
 pub(super) struct Weights {
     pub(super) static_w: DMatrix<f64>,
     pub(super) dynamic_w: Vec<f64>,
+    /// Per rotation-phase output (row-major), a factor on its accelerometer's weight: the robust
+    /// covariance's bread (`selfcal::robust`); `None` everywhere else.
+    pub(super) dynamic_output_w: Option<Vec<f64>>,
 }
 
 impl Weights {
@@ -207,6 +210,7 @@ impl Weights {
                 stat.counts[p] as f64 / (stat.sigma[j].powi(2) * fit.static_variance_factor)
             }),
             dynamic_w: fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect(),
+            dynamic_output_w: None,
         }
     }
 }
@@ -285,6 +289,7 @@ pub fn fit_from(
     let mut weights = Weights {
         static_w: DMatrix::from_fn(poses, n, |p, j| stat.counts[p] as f64 / stat.sigma[j].powi(2)),
         dynamic_w: stat.sigma.iter().map(|s| 1.0 / (s * s)).collect(),
+        dynamic_output_w: None,
     };
     let mut static_factor = 1.0;
     let mut iterations = 0;
@@ -759,6 +764,7 @@ fn normal_equations_with(
             data: d,
             motion: &state.motion,
             weights: &w.dynamic_w,
+            output_w: w.dynamic_output_w.as_deref(),
             fixed: d.reference_rate_rad_s.is_some(),
             rate_curvature,
         };
@@ -946,6 +952,7 @@ pub fn cramer_rao(
     let weights = Weights {
         static_w: DMatrix::from_fn(poses, n, |p, j| counts[p] as f64 / sigma[j].powi(2)),
         dynamic_w: sigma.iter().map(|s| 1.0 / (s * s)).collect(),
+        dynamic_output_w: None,
     };
     let state = State { params: params.clone(), up: up.to_vec(), motion: motion.to_vec() };
     let settings = FitSettings { gravity_m_s2, ..FitSettings::default() };
@@ -979,6 +986,7 @@ pub fn unseen_at(
     let weights = Weights {
         static_w: DMatrix::from_fn(poses, n, |p, j| counts[p] as f64 / sigma[j].powi(2)),
         dynamic_w: sigma.iter().map(|s| 1.0 / (s * s)).collect(),
+        dynamic_output_w: None,
     };
     let state = State { params: params.clone(), up: up.to_vec(), motion: motion.to_vec() };
     let settings = FitSettings { gravity_m_s2, ..FitSettings::default() };

@@ -38,17 +38,18 @@ pub fn robust_covariance(
     settings: &FitSettings,
     fit: &Fit,
 ) -> Result<DMatrix<f64>, FitError> {
-    robust_covariance_with_bread(array, stat, dynamic, dynamic, settings, fit)
+    robust_covariance_with_bread(array, stat, dynamic, None, settings, fit)
 }
 
 /// [`robust_covariance`] of an M-estimator: the scores from `dynamic` (the data the fit was fitted
-/// to), `K` from the information of `bread` (the same samples with only the outputs whose
-/// weight's derivative is 1 used: `selfcal::huber`).
+/// to), `K` from the information of the same outputs, each weighted by its factor in `bread`
+/// (row-major, samples x accelerometers: the weight's derivative averaged over the noise,
+/// `selfcal::huber::expected_derivative`; `None`: every factor 1).
 pub fn robust_covariance_with_bread(
     array: &Array,
     stat: &StaticData,
     dynamic: &DynamicData,
-    bread: &DynamicData,
+    bread: Option<&[f64]>,
     settings: &FitSettings,
     fit: &Fit,
 ) -> Result<DMatrix<f64>, FitError> {
@@ -58,10 +59,11 @@ pub fn robust_covariance_with_bread(
     let dim = na + 2 * poses;
     let active = vec![true; dim];
     let weights = Weights::stored_in(fit, stat);
+    let bread_weights = Weights { dynamic_output_w: bread.map(<[f64]>::to_vec), ..Weights::stored_in(fit, stat) };
     let state = State { params: fit.params.clone(), up: fit.up.clone(), motion: fit.motion.clone() };
     // K from the information at the fit's solution with its stored weights (the fit's own
     // covariance to about 1e-6 of a sigma: the weights go through the stored sigmas).
-    let normal = normal_equations(array, stat, Some(bread), settings, &weights, &state, &active);
+    let normal = normal_equations(array, stat, Some(dynamic), settings, &bread_weights, &state, &active);
     let static_normal = normal_equations(array, stat, None, settings, &weights, &state, &active);
     let gauge = fit.gauge.constraints(array, true, 2 * poses);
     let seen = unseen(&normal.h, &gauge, &active);
@@ -75,6 +77,7 @@ pub fn robust_covariance_with_bread(
         data: dynamic,
         motion: &fit.motion,
         weights: &weights.dynamic_w,
+        output_w: None,
         fixed: dynamic.reference_rate_rad_s.is_some(),
         rate_curvature: false,
     };

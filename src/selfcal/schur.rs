@@ -92,6 +92,9 @@ pub(super) struct Samples<'a> {
     pub data: &'a DynamicData,
     pub motion: &'a [SampleMotion],
     pub weights: &'a [f64],
+    /// Per output (row-major, samples x accelerometers), a factor on its accelerometer's weight
+    /// (the robust covariance's bread, `selfcal::robust`); `None`: every factor 1.
+    pub output_w: Option<&'a [f64]>,
     /// The rate is the reference gyroscopes' (6 motion unknowns a sample, not 9).
     pub fixed: bool,
     /// The rate blocks with the residual's curvature, as `motion::solve` solves the motion.
@@ -153,7 +156,7 @@ fn accumulate_sample(
     g: &mut DVector<f64>,
     scratch: &mut SampleScratch,
 ) {
-    let Samples { sens, data: d, motion: motions, weights, fixed, rate_curvature } = *samples;
+    let Samples { sens, data: d, motion: motions, weights, output_w, fixed, rate_curvature } = *samples;
     let m = &motions[i];
     let n = sens.len();
     let mut hll = SMatrix::<f64, 9, 9>::zeros();
@@ -169,7 +172,10 @@ fn accumulate_sample(
         }
         let q = m.specific_force_m_s2(&s.position_m);
         let r = d.outputs[(i, j)] - s.output(&q);
-        let wt = weights[j];
+        let wt = match output_w {
+            Some(f) => weights[j] * f[i * n + j],
+            None => weights[j],
+        };
         if with_curvature {
             curvature += motion::rate_curvature(s, wt * r);
         }
@@ -339,7 +345,7 @@ mod tests {
                 for k in 0..if samples.fixed { 6 } else { 9 } {
                     l[(row, k)] = dl[k];
                 }
-                w[(row, row)] = samples.weights[j];
+                w[(row, row)] = samples.weights[j] * samples.output_w.map_or(1.0, |f| f[i * n + j]);
                 r[row] = samples.data.outputs[(i, j)] - s.output(&q);
             }
             let mut hll: SMatrix<f64, 9, 9> = SMatrix::from_iterator((l.transpose() * &w * &l).iter().copied());
@@ -374,15 +380,25 @@ mod tests {
     }
 
     /// The packed blocks, added and mirrored, against the Schur complement written out densely,
-    /// with the rate free and with it given; and the gradient alone (no blocks) the same.
+    /// with the rate free and with it given, and with a weight factor per output; and the gradient
+    /// alone (no blocks) the same.
     #[test]
     fn the_packed_update_is_the_dense_schur_complement() {
         let sens = board();
         let (data, motion) = recording(sens.len());
         let weights: Vec<f64> = (0..sens.len()).map(|j| 1e3 * (1.0 + 0.1 * j as f64)).collect();
-        for fixed in [false, true] {
-            let samples =
-                Samples { sens: &sens, data: &data, motion: &motion, weights: &weights, fixed, rate_curvature: false };
+        // A factor per output (the robust covariance's bread), some of them zero, as `dense` reads it.
+        let factors: Vec<f64> = (0..data.used.len()).map(|k| ((k * 7) % 5) as f64 / 4.0).collect();
+        for (fixed, output_w) in [(false, None), (true, None), (false, Some(factors.as_slice()))] {
+            let samples = Samples {
+                sens: &sens,
+                data: &data,
+                motion: &motion,
+                weights: &weights,
+                output_w,
+                fixed,
+                rate_curvature: false,
+            };
             let (h, g) = packed(&samples, false);
             let (h_dense, g_dense) = dense(&samples);
             let scale = h_dense.amax();
@@ -406,6 +422,7 @@ mod tests {
             data: &data,
             motion: &motion,
             weights: &weights,
+            output_w: None,
             fixed: false,
             rate_curvature: true,
         };
