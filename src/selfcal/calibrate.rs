@@ -196,7 +196,7 @@ pub fn calibrate(
             match estimate_clocks(rec, array, &seg, &stat, d, &settings.fit, &fit, robust) {
                 Ok((f, c)) => (f, Some(c), None),
                 Err(ClockFailure::NotResolved(why)) => {
-                    (super::fit::fit(&array.array, &stat, dynamic, &settings.fit).map_err(fit_error)?, None, Some(why))
+                    (fit_from(&array.array, &stat, dynamic, &settings.fit, None).map_err(fit_error)?, None, Some(why))
                 }
                 Err(ClockFailure::Fit(source)) => return Err(fit_error(source)),
             }

@@ -58,12 +58,13 @@ pub fn robust_covariance_with_bread(
     let poses = stat.means.nrows();
     let dim = na + 2 * poses;
     let active = vec![true; dim];
-    let weights = Weights::stored_in(fit, stat);
-    let bread_weights = Weights { dynamic_output_w: bread.map(<[f64]>::to_vec), ..Weights::stored_in(fit, stat) };
+    // The bread's factors weigh the dynamic information only; the scores below take the plain
+    // weights (`output_w: None`).
+    let weights = Weights { dynamic_output_w: bread.map(<[f64]>::to_vec), ..Weights::stored_in(fit, stat) };
     let state = State { params: fit.params.clone(), up: fit.up.clone(), motion: fit.motion.clone() };
     // K from the information at the fit's solution with its stored weights (the fit's own
     // covariance to about 1e-6 of a sigma: the weights go through the stored sigmas).
-    let normal = normal_equations(array, stat, Some(dynamic), settings, &bread_weights, &state, &active);
+    let normal = normal_equations(array, stat, Some(dynamic), settings, &weights, &state, &active);
     let static_normal = normal_equations(array, stat, None, settings, &weights, &state, &active);
     let gauge = fit.gauge.constraints(array, true, 2 * poses);
     let seen = unseen(&normal.h, &gauge, &active);
