@@ -57,26 +57,12 @@ pub fn fisher_information(
     g_m_s2: f64,
     density_m_s2_per_sqrt_hz: f64,
 ) -> DMatrix<f64> {
-    // What each step does to the specific force, once: the steps' motions are the same for
-    // every accelerometer. Accelerometer by accelerometer, each block summed over the steps in
-    // their order (the same sums as step by step).
-    let motions: Vec<(StepMotion, f64)> =
-        schedule.steps().iter().map(|step| (StepMotion::new(step, g_m_s2), step.sampled_duration_s())).collect();
+    let motions = step_motions(schedule, g_m_s2);
     let mut f = DMatrix::zeros(layout.len(), layout.len());
     for j in 0..layout.array().len() {
         let o = PER_ACCEL * j;
         let xj: [f64; PER_ACCEL] = std::array::from_fn(|a| x[o + a]);
-        let variance = (x[o] * density_m_s2_per_sqrt_hz).powi(2);
-        let mut block = [[0.0; PER_ACCEL]; PER_ACCEL];
-        for (motion, duration_s) in &motions {
-            let (_, gj) = layout.accel_model(j, &xj, motion);
-            let w = duration_s / variance;
-            for (a, row) in block.iter_mut().enumerate() {
-                for (b, v) in row.iter_mut().enumerate() {
-                    *v += w * gj[a] * gj[b];
-                }
-            }
-        }
+        let block = fisher_block(layout, j, &xj, &motions, density_m_s2_per_sqrt_hz);
         for (a, row) in block.iter().enumerate() {
             for (b, v) in row.iter().enumerate() {
                 f[(o + a, o + b)] = *v;
@@ -84,6 +70,35 @@ pub fn fisher_information(
         }
     }
     f
+}
+
+/// What each step does to the specific force, with its sampled duration: the same for every
+/// accelerometer and every truth ([`fisher_block`]'s input).
+pub fn step_motions(schedule: &Schedule, g_m_s2: f64) -> Vec<(StepMotion, f64)> {
+    schedule.steps().iter().map(|step| (StepMotion::new(step, g_m_s2), step.sampled_duration_s())).collect()
+}
+
+/// Accelerometer `j`'s diagonal block of [`fisher_information`] at its parameters `xj`: the
+/// steps' information summed in their order.
+pub fn fisher_block(
+    layout: &Layout,
+    j: usize,
+    xj: &[f64; PER_ACCEL],
+    motions: &[(StepMotion, f64)],
+    density_m_s2_per_sqrt_hz: f64,
+) -> [[f64; PER_ACCEL]; PER_ACCEL] {
+    let variance = (xj[0] * density_m_s2_per_sqrt_hz).powi(2);
+    let mut block = [[0.0; PER_ACCEL]; PER_ACCEL];
+    for (motion, duration_s) in motions {
+        let (_, gj) = layout.accel_model(j, xj, motion);
+        let w = duration_s / variance;
+        for (a, row) in block.iter_mut().enumerate() {
+            for (b, v) in row.iter_mut().enumerate() {
+                *v += w * gj[a] * gj[b];
+            }
+        }
+    }
+    block
 }
 
 /// A weak or unidentifiable combination of parameters.

@@ -10,8 +10,11 @@ use rayon::prelude::*;
 use super::dynamics::{Linearisation, LinearisationError, linearise};
 use super::nonlinearity::{Probe, SIGMA_POINT, index, navigate_probes, pair_index, principal_direction};
 use super::norm::{GaussNorm, ScaleMixture, turned_axes};
-use super::sources::{Calibration, calibration_with, nominal_errors, nominal_parameters, reference, truths};
+use super::sources::{
+    Calibration, ParamBlock, block_covariances, calibration_with, nominal_errors, nominal_parameters, reference, truths,
+};
 use super::stacked::StackedBlocks;
+use crate::calib::fisher::step_motions;
 use crate::calib::params::PER_ACCEL;
 use crate::config::calibration::Estimator;
 use crate::mc::Cell;
@@ -585,6 +588,8 @@ impl Context<'_> {
         // The region the Monte Carlo's fits are refused outside of.
         let bounds = crate::calib::estimate::small_error_bounds(layout);
         let p = layout.len();
+        let motions = step_motions(&cell.schedule, cell.calibration.gravity_m_s2);
+        let blocks_per_horizon = blocks.first().map_or(0, Vec::len);
         // Chunks of truths in parallel, each summing its truths' weighted covariances in order
         // (the budget's mean covariance: the same bits on any number of threads).
         let per_chunk: Vec<(Vec<Option<TruthParts>>, WeightedSum)> = xs
@@ -594,6 +599,35 @@ impl Context<'_> {
                 let parts = chunk
                     .iter()
                     .map(|x| {
+                        // A perfect fixture's truth block by block on the stack, where every block
+                        // is positive definite (the same bits as the whole covariance).
+                        let fast = match (&self.stacked, single) {
+                            (Some(stacked), false) => {
+                                block_covariances(cell, x, self.density, &motions).map(|blocks| (stacked, blocks))
+                            }
+                            _ => None,
+                        };
+                        if let Some((stacked, mut blocks)) = fast {
+                            let weight = stay_in_small_error_region_blocks(&mut blocks, x, &bounds);
+                            if weight.is_nan() || weight <= 0.0 {
+                                return None;
+                            }
+                            sum.add_blocks(&blocks, weight);
+                            let covs = stacked.covariances(&blocks);
+                            let parts = (0..horizons)
+                                .map(|h| {
+                                    (0..blocks_per_horizon)
+                                        .map(|m| Part {
+                                            cov: covs[h * blocks_per_horizon + m]
+                                                + self.noise_var * self.blocks[h][m].noise_unit,
+                                            mean: Vector3::zeros(),
+                                            unbounded_by: vec![],
+                                        })
+                                        .collect()
+                                })
+                                .collect();
+                            return Some((parts, weight));
+                        }
                         let mut cal = calibration_with(cell, x, self.density, single);
                         let fixture = (!perfect).then_some(&mut cal.fixture);
                         let weight = stay_in_small_error_region(&mut cal.covariance, fixture, x, &bounds);
@@ -603,8 +637,13 @@ impl Context<'_> {
                         sum.add(&cal, weight);
                         let pc = ParamCov { cov: &cal.covariance, block_diagonal: perfect };
                         // Every block's S C S^T at once where C is block-diagonal (the same bits).
-                        let stacked =
-                            self.stacked.as_ref().filter(|_| perfect).map(|st| st.covariances(&cal.covariance));
+                        let stacked = self.stacked.as_ref().filter(|_| perfect).map(|st| {
+                            let c = &cal.covariance;
+                            let diagonal: Vec<ParamBlock> = (0..c.nrows() / PER_ACCEL)
+                                .map(|j| ParamBlock::from_fn(|r, q| c[(PER_ACCEL * j + r, PER_ACCEL * j + q)]))
+                                .collect();
+                            st.covariances(&diagonal)
+                        });
                         let mut index = 0;
                         let parts = self.per_block(|b| {
                             let cov = match &stacked {
@@ -929,6 +968,19 @@ impl WeightedSum {
         }
     }
 
+    /// [`Self::add`] for a perfect fixture's covariance held as one block per accelerometer.
+    fn add_blocks(&mut self, blocks: &[ParamBlock], weight: f64) {
+        self.weight += weight;
+        for (j, b) in blocks.iter().enumerate() {
+            let o = PER_ACCEL * j;
+            for c in 0..PER_ACCEL {
+                for r in 0..PER_ACCEL {
+                    self.cov[(o + r, o + c)] += weight * b[(r, c)];
+                }
+            }
+        }
+    }
+
     fn merge(&mut self, other: &WeightedSum) {
         self.weight += other.weight;
         self.cov += &other.cov;
@@ -1023,36 +1075,16 @@ fn stay_in_small_error_region(
     x: &DVector<f64>,
     bounds: &[f64],
 ) -> f64 {
-    use statrs::function::erf::erfc;
-    let phi = |z: f64| (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt();
-    let cdf = |z: f64| 0.5 * erfc(-z / std::f64::consts::SQRT_2);
     let mut fixture = fixture;
     let mut weight = 1.0;
     for (i, &r) in bounds.iter().enumerate() {
-        if !r.is_finite() {
-            continue;
-        }
         let var = cov[(i, i)];
-        if var.is_nan() || var.is_infinite() {
-            return 0.0;
-        }
-        let sigma = var.max(0.0).sqrt();
-        if sigma == 0.0 {
-            continue;
-        }
-        let (a, b) = ((-r - x[i]) / sigma, (r - x[i]) / sigma);
-        if a <= -FAR_IN_THE_TAIL && b >= FAR_IN_THE_TAIL {
-            // Both bounds so far out that the chance and the spread kept are 1 to the last bit.
-            continue;
-        }
-        // Upper tail by symmetry where both bounds lie above the mean (no cancellation).
-        let inside = if a > 0.0 { cdf(-a) - cdf(-b) } else { cdf(b) - cdf(a) };
-        if inside.is_nan() || inside <= 0.0 {
-            return 0.0;
-        }
+        let (inside, shrink) = match stay(var, x[i], r) {
+            Stay::Always => continue,
+            Stay::Never => return 0.0,
+            Stay::Within { inside, shrink } => (inside, shrink),
+        };
         weight *= inside;
-        let second_moment = 1.0 + (a * phi(a) - b * phi(b)) / inside;
-        let shrink = 1.0 - second_moment.max(0.0).sqrt();
         let beta: Vec<f64> = (0..cov.nrows()).map(|k| cov[(k, i)] / var).collect();
         for m in [Some(&mut *cov), fixture.as_deref_mut()].into_iter().flatten() {
             shrink_along(m, &beta, i, shrink);
@@ -1061,10 +1093,71 @@ fn stay_in_small_error_region(
     weight
 }
 
-/// `m <- A m A^T` with `A = I - shrink beta e_i^T`. Only the rows and columns `r` with
-/// `beta[r]` or `m[r, i]` nonzero change (elsewhere the update is an exact zero for finite
-/// values; the caller returns before a NaN or infinite variance gets here), so a
-/// block-diagonal `m` is updated in its block alone.
+/// [`stay_in_small_error_region`] for a perfect fixture's covariance held as one block per
+/// accelerometer (the same arithmetic, so the same bits: the shrink of a parameter reaches only
+/// its own block).
+fn stay_in_small_error_region_blocks(blocks: &mut [ParamBlock], x: &DVector<f64>, bounds: &[f64]) -> f64 {
+    let mut weight = 1.0;
+    for (j, m) in blocks.iter_mut().enumerate() {
+        for i in 0..PER_ACCEL {
+            let var = m[(i, i)];
+            let (inside, shrink) = match stay(var, x[PER_ACCEL * j + i], bounds[PER_ACCEL * j + i]) {
+                Stay::Always => continue,
+                Stay::Never => return 0.0,
+                Stay::Within { inside, shrink } => (inside, shrink),
+            };
+            weight *= inside;
+            let beta: [f64; PER_ACCEL] = std::array::from_fn(|k| m[(k, i)] / var);
+            let (row_i, col_i): ([f64; PER_ACCEL], [f64; PER_ACCEL]) =
+                (std::array::from_fn(|c| m[(i, c)]), std::array::from_fn(|r| m[(r, i)]));
+            let mii = m[(i, i)];
+            for c in 0..PER_ACCEL {
+                for r in 0..PER_ACCEL {
+                    m[(r, c)] += shrink * (shrink * beta[r] * mii * beta[c] - beta[r] * row_i[c] - col_i[r] * beta[c]);
+                }
+            }
+        }
+    }
+    weight
+}
+
+/// What the small-error region does to one parameter's fits.
+enum Stay {
+    /// No bound, no spread, or the bound far in the tail: nothing.
+    Always,
+    /// No fit stays (or the variance is not a number).
+    Never,
+    /// The chance a fit stays, and how much the kept fits' spread shrinks along the parameter.
+    Within { inside: f64, shrink: f64 },
+}
+
+/// [`Stay`] of a parameter with variance `var`, true value `x` and bound `r` (`|estimate| <= r`).
+fn stay(var: f64, x: f64, r: f64) -> Stay {
+    use statrs::function::erf::erfc;
+    let phi = |z: f64| (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt();
+    let cdf = |z: f64| 0.5 * erfc(-z / std::f64::consts::SQRT_2);
+    if !r.is_finite() {
+        return Stay::Always;
+    }
+    if var.is_nan() || var.is_infinite() {
+        return Stay::Never;
+    }
+    let sigma = var.max(0.0).sqrt();
+    if sigma == 0.0 {
+        return Stay::Always;
+    }
+    let (a, b) = ((-r - x) / sigma, (r - x) / sigma);
+    if a <= -FAR_IN_THE_TAIL && b >= FAR_IN_THE_TAIL {
+        return Stay::Always;
+    }
+    let inside = if a > 0.0 { cdf(-a) - cdf(-b) } else { cdf(b) - cdf(a) };
+    if inside.is_nan() || inside <= 0.0 {
+        return Stay::Never;
+    }
+    let second_moment = 1.0 + (a * phi(a) - b * phi(b)) / inside;
+    Stay::Within { inside, shrink: 1.0 - second_moment.max(0.0).sqrt() }
+}
+
 fn shrink_along(m: &mut DMatrix<f64>, beta: &[f64], i: usize, shrink: f64) {
     let n = m.nrows();
     let active: Vec<usize> = (0..n).filter(|&r| beta[r] != 0.0 || m[(r, i)] != 0.0 || m[(i, r)] != 0.0).collect();
@@ -1085,6 +1178,42 @@ const FAR_IN_THE_TAIL: f64 = 9.0;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A mixture's truths calibrated block by block on the stack are the whole-covariance path's
+    /// bits (its Cholesky inverse and its small-error shrink), on the quickstart's truths: the
+    /// fast path must not move a number.
+    #[test]
+    fn block_by_block_calibrations_are_the_whole_covariances_bits() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs").join("quickstart.toml");
+        let cfg = crate::mc::McConfig::load(&path).expect("the quickstart loads");
+        let cell = &cfg.cells[0];
+        let density = cell.noise.white.density_m_s2_per_sqrt_hz();
+        let motions = step_motions(&cell.schedule, cell.calibration.gravity_m_s2);
+        let bounds = crate::calib::estimate::small_error_bounds(&cell.layout);
+        let p = cell.layout.len();
+        let mut shrunk = 0;
+        for x in truths(cell, cfg.seed, 64) {
+            let mut blocks = block_covariances(cell, &x, density, &motions).expect("positive definite blocks");
+            let mut whole = calibration_with(cell, &x, density, false).covariance;
+            let w_blocks = stay_in_small_error_region_blocks(&mut blocks, &x, &bounds);
+            let before = whole.clone();
+            let w_whole = stay_in_small_error_region(&mut whole, None, &x, &bounds);
+            shrunk += usize::from(whole != before);
+            assert_eq!(w_blocks.to_bits(), w_whole.to_bits());
+            for r in 0..p {
+                for c in 0..p {
+                    let expected = if r / PER_ACCEL == c / PER_ACCEL {
+                        blocks[r / PER_ACCEL][(r % PER_ACCEL, c % PER_ACCEL)]
+                    } else {
+                        0.0
+                    };
+                    assert_eq!(whole[(r, c)].to_bits(), expected.to_bits(), "({r}, {c})");
+                }
+            }
+        }
+        // The shrink was exercised, not only the plain inverse.
+        assert!(shrunk > 0);
+    }
 
     /// The chance of staying in the region and the kept fits' second moments against samples of
     /// a normal (an independent generator): a location error of sigma 50 mm at truth 10 mm in a

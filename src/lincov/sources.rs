@@ -12,8 +12,8 @@
 use nalgebra::allocator::Allocator;
 use nalgebra::{DMatrix, DVector, DefaultAllocator, Dim, OMatrix, SMatrix, SymmetricEigen};
 
-use crate::calib::fisher::{NULL_TOLERANCE, Targets, fisher_information};
-use crate::calib::params::{Layout, PER_ACCEL};
+use crate::calib::fisher::{NULL_TOLERANCE, Targets, fisher_block, fisher_information};
+use crate::calib::params::{Layout, PER_ACCEL, StepMotion};
 use crate::calib::pose::marginal_fisher;
 use crate::mc::Cell;
 use crate::rng::trial_rng;
@@ -158,18 +158,51 @@ fn cholesky_inverse(fim: &DMatrix<f64>, coupled: bool) -> Option<DMatrix<f64>> {
         }
         return Some(out);
     }
-    // Block by block at a fixed size (the same arithmetic, without the heap).
+    // ParamBlock by block at a fixed size (the same arithmetic, without the heap).
     for o in (0..p).step_by(PER_ACCEL) {
-        let d: [f64; PER_ACCEL] = std::array::from_fn(|i| fim[(o + i, o + i)]);
-        let scaled = SMatrix::<f64, PER_ACCEL, PER_ACCEL>::from_fn(|r, c| fim[(o + r, o + c)] / (d[r] * d[c]).sqrt());
-        let inv = scaled_cholesky_inverse(scaled, &d)?;
+        let inv = invert_block(&ParamBlock::from_fn(|r, c| fim[(o + r, o + c)]))?;
         for c in 0..PER_ACCEL {
             for r in 0..PER_ACCEL {
-                out[(o + r, o + c)] = inv[(r, c)] / (d[r] * d[c]).sqrt();
+                out[(o + r, o + c)] = inv[(r, c)];
             }
         }
     }
     Some(out)
+}
+
+/// One accelerometer's `PER_ACCEL x PER_ACCEL` block of a parameter covariance or information.
+pub type ParamBlock = SMatrix<f64, PER_ACCEL, PER_ACCEL>;
+
+/// The inverse of one accelerometer's block of a positive definite information by Cholesky, after
+/// scaling to unit diagonal (`None` as [`scaled_cholesky_inverse`]).
+fn invert_block(fim: &ParamBlock) -> Option<ParamBlock> {
+    let d: [f64; PER_ACCEL] = std::array::from_fn(|i| fim[(i, i)]);
+    let scaled = ParamBlock::from_fn(|r, c| fim[(r, c)] / (d[r] * d[c]).sqrt());
+    let inv = scaled_cholesky_inverse(scaled, &d)?;
+    Some(ParamBlock::from_fn(|r, c| inv[(r, c)] / (d[r] * d[c]).sqrt()))
+}
+
+/// [`calibration_with`] without its null search, for a perfect fixture: the covariance as one
+/// block per accelerometer, on the stack (the same arithmetic, so the same bits). `motions` are
+/// the schedule's ([`crate::calib::fisher::step_motions`]). `None` without noise, with a fixture error, or where a
+/// block is not positive definite: [`calibration_with`] then finds the null directions.
+pub fn block_covariances(
+    cell: &Cell,
+    x: &DVector<f64>,
+    density_m_s2_per_sqrt_hz: f64,
+    motions: &[(StepMotion, f64)],
+) -> Option<Vec<ParamBlock>> {
+    if density_m_s2_per_sqrt_hz <= 0.0 || !cell.calibration.pose.is_perfect() {
+        return None;
+    }
+    (0..cell.array.len())
+        .map(|j| {
+            let o = PER_ACCEL * j;
+            let xj: [f64; PER_ACCEL] = std::array::from_fn(|a| x[o + a]);
+            let f = fisher_block(&cell.layout, j, &xj, motions, density_m_s2_per_sqrt_hz);
+            invert_block(&ParamBlock::from_fn(|r, c| f[r][c]))
+        })
+        .collect()
 }
 
 /// The inverse of `scaled` (a block of the information scaled to unit diagonal by `d`, its
@@ -197,7 +230,7 @@ where
 pub type NullDirection = (DVector<f64>, Vec<usize>);
 
 /// The pseudo-inverse of a Fisher information, in target-scaled units (so that parameters of
-/// different units compare), and its null directions. Block by block (7 x 7 per accelerometer)
+/// different units compare), and its null directions. ParamBlock by block (7 x 7 per accelerometer)
 /// unless `coupled`.
 pub fn pseudo_inverse(
     layout: &Layout,

@@ -2,7 +2,7 @@
 //! perfect fixture: one `PER_ACCEL x PER_ACCEL` block per accelerometer).
 //!
 //! A mixture propagates each of its truths' covariances through the same blocks `S_b` (3 x P,
-//! one per horizon and metric). Block by block, `S_b C S_b^T` is a sum over accelerometers of
+//! one per horizon and metric). ParamBlock by block, `S_b C S_b^T` is a sum over accelerometers of
 //! 3 x 7 by 7 x 7 products: short columns that leave the processor's vector lanes mostly empty.
 //! Here the blocks are stacked with the block index fastest, `t[j][c][r][b] = S_b[r, 7 j + c]`,
 //! so each accelerometer's `S C` for every block is one run of long vector updates, and so is
@@ -13,6 +13,7 @@
 
 use nalgebra::{DMatrix, Matrix3};
 
+use super::sources::ParamBlock;
 use crate::calib::params::PER_ACCEL;
 
 /// The metric blocks stacked for [`StackedBlocks::covariances`].
@@ -44,9 +45,9 @@ impl StackedBlocks {
         Some(Self { blocks, accelerometers: p / PER_ACCEL, t })
     }
 
-    /// `S_b C S_b^T` for every block `b`, in the order the blocks were given. `cov` is P x P;
-    /// only its diagonal blocks are read.
-    pub fn covariances(&self, cov: &DMatrix<f64>) -> Vec<Matrix3<f64>> {
+    /// `S_b C S_b^T` for every block `b`, in the order the blocks were given. `cov` holds `C`'s
+    /// diagonal blocks, one per accelerometer.
+    pub fn covariances(&self, cov: &[ParamBlock]) -> Vec<Matrix3<f64>> {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx") {
             // SAFETY: the processor has AVX, the only feature the copy is compiled for.
@@ -59,29 +60,29 @@ impl StackedBlocks {
     /// same bits).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx")]
-    fn covariances_avx(&self, cov: &DMatrix<f64>) -> Vec<Matrix3<f64>> {
+    fn covariances_avx(&self, cov: &[ParamBlock]) -> Vec<Matrix3<f64>> {
         self.covariances_any(cov)
     }
 
     #[inline(always)]
-    fn covariances_any(&self, cov: &DMatrix<f64>) -> Vec<Matrix3<f64>> {
+    fn covariances_any(&self, cov: &[ParamBlock]) -> Vec<Matrix3<f64>> {
         let nb = self.blocks;
         let run = 3 * nb;
         // acc[(r * 3 + q) * nb + b] = (S_b C S_b^T)[r, q]
         let mut acc = vec![0.0; 9 * nb];
         // u[(c * 3 + r) * nb + b] = (S_b C_j)[r, c]
         let mut u = vec![0.0; PER_ACCEL * run];
-        for j in 0..self.accelerometers {
+        for (j, c_j) in cov.iter().enumerate().take(self.accelerometers) {
             let o = j * PER_ACCEL;
             let t_j = &self.t[o * run..(o + PER_ACCEL) * run];
             for c in 0..PER_ACCEL {
                 let u_c = &mut u[c * run..(c + 1) * run];
-                let c0 = cov[(o, o + c)];
+                let c0 = c_j[(0, c)];
                 for (u, t) in u_c.iter_mut().zip(&t_j[..run]) {
                     *u = t * c0;
                 }
                 for k in 1..PER_ACCEL {
-                    let ck = cov[(o + k, o + c)];
+                    let ck = c_j[(k, c)];
                     for (u, t) in u_c.iter_mut().zip(&t_j[k * run..(k + 1) * run]) {
                         *u += t * ck;
                     }
@@ -134,7 +135,7 @@ mod tests {
     }
 
     /// The same bits as the block-by-block product, on random blocks and a random block-diagonal
-    /// covariance (off-diagonal blocks filled with values that must not be read), for a block
+    /// covariance (the product's off-diagonal blocks filled with values it must not read), for a block
     /// count that fills no whole set of vector lanes.
     #[test]
     fn every_block_matches_the_block_by_block_product_bit_for_bit() {
@@ -146,8 +147,10 @@ mod tests {
         let a = DMatrix::from_fn(p, p, |_, _| rng.random_range(-1.0..1.0));
         let full = &a * a.transpose();
         let cov = DMatrix::from_fn(p, p, |r, c| if r / PER_ACCEL == c / PER_ACCEL { full[(r, c)] } else { f64::NAN });
+        let diagonal: Vec<ParamBlock> =
+            (0..accels).map(|j| ParamBlock::from_fn(|r, c| cov[(PER_ACCEL * j + r, PER_ACCEL * j + c)])).collect();
         let stacked = StackedBlocks::new(&s.iter().collect::<Vec<_>>()).expect("whole accelerometers");
-        let covs = stacked.covariances(&cov);
+        let covs = stacked.covariances(&diagonal);
         assert_eq!(covs.len(), blocks);
         for (b, m) in s.iter().enumerate() {
             let expected = by_blocks(m, &cov);
