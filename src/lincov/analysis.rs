@@ -308,6 +308,52 @@ fn bounded_mixture(
     (mix, bounded, share)
 }
 
+/// A row's distribution: its quantiles, their standard errors and its mean square.
+#[derive(Debug, Clone, Copy)]
+struct RowDistribution {
+    median: f64,
+    p95: f64,
+    p05: f64,
+    median_se: f64,
+    p95_se: f64,
+    mean_square: f64,
+}
+
+impl RowDistribution {
+    /// Where an unidentifiable parameter reaches every component.
+    fn unbounded() -> Self {
+        let inf = f64::INFINITY;
+        Self { median: inf, p95: inf, p05: inf, median_se: 0.0, p95_se: 0.0, mean_square: inf }
+    }
+}
+
+/// The distribution of block `(h, m)` of a mixture over drawn truths (weights `weights`, read
+/// along `axes`): components where an unidentifiable parameter reaches the metric are infinite,
+/// so a quantile at or above the bounded components' weight is infinite too.
+fn mixture_distribution(
+    parts: &[Vec<Vec<Part>>],
+    weights: &[f64],
+    axes: &[[Vector3<f64>; 6]],
+    h: usize,
+    m: usize,
+) -> RowDistribution {
+    let (mix, bounded, weight) = bounded_mixture(parts, weights, axes, h, m, &Matrix3::zeros());
+    if bounded.is_empty() {
+        return RowDistribution::unbounded();
+    }
+    let within = |p: f64| if p < weight { Some(p / weight) } else { None };
+    let q = |p: f64| within(p).map_or((f64::INFINITY, 0.0), |p| mix.quantile_with_error(p));
+    let ((median, median_se), (p95, p95_se)) = (q(0.5), q(0.95));
+    let p05 = within(0.05).map_or(f64::INFINITY, |p| mix.quantile(p));
+    let mean_square = if bounded.len() < parts.len() {
+        f64::INFINITY
+    } else {
+        let total_weight: f64 = weights.iter().sum();
+        parts.iter().zip(weights).map(|(c, w)| w * c[h][m].cov.trace()).sum::<f64>() / total_weight
+    };
+    RowDistribution { median, p95, p05, median_se, p95_se, mean_square }
+}
+
 /// The largest eigenvalue of a symmetric 3 x 3 matrix (0 for a zero matrix).
 fn largest_eigenvalue(m: &Matrix3<f64>) -> f64 {
     let e = nalgebra::SymmetricEigen::new((m + m.transpose()) * 0.5);
@@ -383,14 +429,14 @@ struct Prepared {
     comp: Compensation,
     /// `parts[component][horizon][metric]`.
     parts: Vec<Vec<Vec<Part>>>,
+    /// A mixture's distribution per horizon and metric (`None` for one Gaussian: its row finds
+    /// it).
+    distributions: Option<Vec<Vec<RowDistribution>>>,
     /// `shares[horizon][metric]`: the budget, the weighted mean over the components of each one's
     /// shares. They are linear in its parameter covariance and the sensitivity is the reference's
     /// for every component, so they are taken once, from the weighted mean of the components'
     /// covariances.
     shares: Vec<Vec<Shares>>,
-    /// Per component, its weight: the chance that a fit at its truth stays in the model's
-    /// small-error region (1 for one Gaussian).
-    weights: Vec<f64>,
     probes: Vec<ProbeBlock>,
     /// Per probe, the navigated norms at every horizon (empty without a grid or probes).
     navigated: Vec<Vec<[f64; 4]>>,
@@ -404,9 +450,6 @@ struct Prepared {
     excluded: usize,
     /// The chance, over the truths drawn, that a fit leaves the small-error region.
     refused_fraction: f64,
-    /// Per component of a mixture, the turned axes its Gaussian is read along (empty for one
-    /// Gaussian).
-    axes: Vec<[Vector3<f64>; 6]>,
 }
 
 impl Context<'_> {
@@ -559,7 +602,7 @@ impl Context<'_> {
     ) -> Prepared {
         Prepared {
             comp,
-            weights: vec![1.0],
+            distributions: None,
             parts: vec![parts],
             shares,
             navigated: self.navigate(probes, &probe_blocks),
@@ -569,7 +612,6 @@ impl Context<'_> {
             truth_index: None,
             excluded: 0,
             refused_fraction: 0.0,
-            axes: vec![],
         }
     }
 
@@ -707,103 +749,120 @@ impl Context<'_> {
                 }
             }
         }
-        let mut probe_blocks = Vec::new();
-        let (mut probe_component, mut truth_index, mut navigated) = (0, None, vec![]);
-        if settings.nonlinearity {
-            // Sigma points of the component at the 95th percentile of the last horizon's
-            // position variance (the tail), navigated with its own truth. The percentile is
-            // weighted by the components' weights (equal weights: the plain order statistic).
-            let mut order: Vec<usize> = (0..per_truth.len()).collect();
-            let size = |k: usize| per_truth[k][horizons - 1][3].cov.trace();
-            order.sort_by(|&a, &b| size(a).total_cmp(&size(b)));
-            let k = if weights.iter().all(|&w| w == 1.0) {
-                order[((order.len() as f64 - 1.0) * 0.95).round() as usize]
-            } else {
-                let target = 0.95 * weights.iter().sum::<f64>();
-                let mut cumulative = 0.0;
-                *order
-                    .iter()
-                    .find(|&&k| {
-                        cumulative += weights[k];
-                        cumulative >= target
-                    })
-                    .unwrap_or(&order[order.len() - 1])
-            };
-            probe_component = k;
-            // Its covariance again (the truths' are not kept: 1,024 of them are 14 MB).
-            let x_t = &xs[k];
-            let mut cov = calibration_with(cell, x_t, self.density, single).covariance;
-            stay_in_small_error_region(&mut cov, None, x_t, &bounds);
-            let cov = &cov;
-            // Per metric of the last horizon, a pair of probes along its principal direction, as far
-            // out as the mixture's p95 there (the row's own number), not the probed truth's own
-            // tail beyond it; navigated beside the probed truth's own linearisation.
-            let directions = || -> Vec<(usize, DVector<f64>, f64)> {
-                (0..blocks[horizons - 1].len())
-                    .into_par_iter()
-                    .filter_map(|m| {
-                        let b = &blocks[horizons - 1][m];
-                        let u = principal_direction(&b.s, cov)?;
-                        // The parameters' part of the p95 (the probes move the parameters; a metric
-                        // the noise dominates would put them far out).
-                        let noise = self.noise_var * b.noise_unit;
-                        let p95 = if per_truth.len() == 1 {
-                            let part = &per_truth[0][horizons - 1][m];
-                            if part.unbounded_by.is_empty() {
-                                GaussNorm::new(&part.mean, &(part.cov - noise)).quantile(0.95)
+        // The nonlinearity's probes, beside the mixture's distributions (which need only the
+        // truths' Gaussians: they fill the threads while the probed truth is linearised again).
+        let probe_stage = || {
+            let mut probe_blocks = Vec::new();
+            let (mut probe_component, mut truth_index, mut navigated) = (0, None, vec![]);
+            if settings.nonlinearity {
+                // Sigma points of the component at the 95th percentile of the last horizon's
+                // position variance (the tail), navigated with its own truth. The percentile is
+                // weighted by the components' weights (equal weights: the plain order statistic).
+                let mut order: Vec<usize> = (0..per_truth.len()).collect();
+                let size = |k: usize| per_truth[k][horizons - 1][3].cov.trace();
+                order.sort_by(|&a, &b| size(a).total_cmp(&size(b)));
+                let k = if weights.iter().all(|&w| w == 1.0) {
+                    order[((order.len() as f64 - 1.0) * 0.95).round() as usize]
+                } else {
+                    let target = 0.95 * weights.iter().sum::<f64>();
+                    let mut cumulative = 0.0;
+                    *order
+                        .iter()
+                        .find(|&&k| {
+                            cumulative += weights[k];
+                            cumulative >= target
+                        })
+                        .unwrap_or(&order[order.len() - 1])
+                };
+                probe_component = k;
+                // Its covariance again (the truths' are not kept: 1,024 of them are 14 MB).
+                let x_t = &xs[k];
+                let mut cov = calibration_with(cell, x_t, self.density, single).covariance;
+                stay_in_small_error_region(&mut cov, None, x_t, &bounds);
+                let cov = &cov;
+                // Per metric of the last horizon, a pair of probes along its principal direction, as far
+                // out as the mixture's p95 there (the row's own number), not the probed truth's own
+                // tail beyond it; navigated beside the probed truth's own linearisation.
+                let directions = || -> Vec<(usize, DVector<f64>, f64)> {
+                    (0..blocks[horizons - 1].len())
+                        .into_par_iter()
+                        .filter_map(|m| {
+                            let b = &blocks[horizons - 1][m];
+                            let u = principal_direction(&b.s, cov)?;
+                            // The parameters' part of the p95 (the probes move the parameters; a metric
+                            // the noise dominates would put them far out).
+                            let noise = self.noise_var * b.noise_unit;
+                            let p95 = if per_truth.len() == 1 {
+                                let part = &per_truth[0][horizons - 1][m];
+                                if part.unbounded_by.is_empty() {
+                                    GaussNorm::new(&part.mean, &(part.cov - noise)).quantile(0.95)
+                                } else {
+                                    f64::INFINITY
+                                }
                             } else {
-                                f64::INFINITY
+                                let (mix, _, share) =
+                                    bounded_mixture(&per_truth, &weights, &axes, horizons - 1, m, &noise);
+                                if 0.95 < share { mix.quantile(0.95 / share) } else { f64::INFINITY }
+                            };
+                            let one_sigma = (&b.s * &u).norm();
+                            let sigmas = if p95.is_finite() && one_sigma > 0.0 { p95 / one_sigma } else { SIGMA_POINT };
+                            Some((m, u, sigmas))
+                        })
+                        .collect()
+                };
+                let relinearised;
+                (relinearised, (probe_blocks, navigated)) = rayon::join(
+                    || (!single).then(|| linearisation_at(cell, x_t)),
+                    || {
+                        let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
+                        for (m, u, sigmas) in directions() {
+                            for sign in [1.0, -1.0] {
+                                let dx = &u * (sign * sigmas);
+                                probes.push(Probe { truth: x_t.clone(), compensation: x_t + &dx });
+                                probe_blocks.push(ProbeBlock { metric: m, horizon: None, dx, sigmas, linear: None });
                             }
-                        } else {
-                            let (mix, _, share) = bounded_mixture(&per_truth, &weights, &axes, horizons - 1, m, &noise);
-                            if 0.95 < share { mix.quantile(0.95 / share) } else { f64::INFINITY }
-                        };
-                        let one_sigma = (&b.s * &u).norm();
-                        let sigmas = if p95.is_finite() && one_sigma > 0.0 { p95 / one_sigma } else { SIGMA_POINT };
-                        Some((m, u, sigmas))
-                    })
-                    .collect()
-            };
-            let relinearised;
-            (relinearised, (probe_blocks, navigated)) = rayon::join(
-                || (!single).then(|| linearisation_at(cell, x_t)),
-                || {
-                    let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
-                    for (m, u, sigmas) in directions() {
-                        for sign in [1.0, -1.0] {
-                            let dx = &u * (sign * sigmas);
-                            probes.push(Probe { truth: x_t.clone(), compensation: x_t + &dx });
-                            probe_blocks.push(ProbeBlock { metric: m, horizon: None, dx, sigmas, linear: None });
                         }
+                        let navigated = self.navigate(&probes, &probe_blocks);
+                        (probe_blocks, navigated)
+                    },
+                );
+                // The probes' linear prediction from the probed truth's own linearisation: the
+                // index then measures the navigator's departure from it at that truth, and the
+                // sensitivity's change from the reference's is the truth index's.
+                if let Some(Ok(at)) = &relinearised {
+                    let at_blocks: Vec<[DMatrix<f64>; 4]> =
+                        (0..horizons).map(|h| std::array::from_fn(|m| at.block(h, m))).collect();
+                    for pb in probe_blocks.iter_mut() {
+                        pb.linear = Some(
+                            at_blocks.iter().map(|hb| std::array::from_fn(|m| (&hb[m] * &pb.dx).norm())).collect(),
+                        );
                     }
-                    let navigated = self.navigate(&probes, &probe_blocks);
-                    (probe_blocks, navigated)
-                },
-            );
-            // The probes' linear prediction from the probed truth's own linearisation: the
-            // index then measures the navigator's departure from it at that truth, and the
-            // sensitivity's change from the reference's is the truth index's.
-            if let Some(Ok(at)) = &relinearised {
-                let at_blocks: Vec<[DMatrix<f64>; 4]> =
-                    (0..horizons).map(|h| std::array::from_fn(|m| at.block(h, m))).collect();
-                for pb in probe_blocks.iter_mut() {
-                    pb.linear =
-                        Some(at_blocks.iter().map(|hb| std::array::from_fn(|m| (&hb[m] * &pb.dx).norm())).collect());
                 }
+                truth_index = relinearised.map(|at| {
+                    rms_change(at, horizons, |at, h, m| {
+                        let s = at.block(h, m);
+                        let moved = (&s * cov * s.transpose()).trace() + self.noise_var * at.noise_block(h, m).trace();
+                        (moved, per_truth[k][h][m].cov.trace())
+                    })
+                });
             }
-            truth_index = relinearised.map(|at| {
-                rms_change(at, horizons, |at, h, m| {
-                    let s = at.block(h, m);
-                    let moved = (&s * cov * s.transpose()).trace() + self.noise_var * at.noise_block(h, m).trace();
-                    (moved, per_truth[k][h][m].cov.trace())
-                })
-            });
-        }
+            (probe_blocks, probe_component, truth_index, navigated)
+        };
+        let mixture = || {
+            (per_truth.len() > 1).then(|| {
+                (0..horizons)
+                    .into_par_iter()
+                    .map(|h| (0..4).map(|m| mixture_distribution(&per_truth, &weights, &axes, h, m)).collect())
+                    .collect()
+            })
+        };
+        let (distributions, (probe_blocks, probe_component, truth_index, navigated)) =
+            rayon::join(mixture, probe_stage);
         Ok(Prepared {
             comp: Compensation::Estimated,
+            distributions,
             parts: per_truth,
             shares,
-            weights,
             probes: probe_blocks,
             navigated,
             unbounded,
@@ -811,7 +870,6 @@ impl Context<'_> {
             truth_index,
             excluded,
             refused_fraction,
-            axes,
         })
     }
 
@@ -820,43 +878,22 @@ impl Context<'_> {
         let parts = &prep.parts;
         let components = parts.len();
         let first = &parts[0][h][m];
-        let mean_square: f64;
-        let (median, p95, p05);
-        let (mut median_se, mut p95_se) = (0.0, 0.0);
-        // Components where an unidentifiable parameter reaches the metric are infinite: a
-        // quantile at or above the bounded components' weight is then infinite too.
-        let w = &prep.weights;
-        let total_weight: f64 = w.iter().sum();
-        let (mix, bounded, weight) = if components > 1 {
-            bounded_mixture(parts, w, &prep.axes, h, m, &Matrix3::zeros())
-        } else {
-            let bounded: Vec<usize> = (0..components).filter(|&k| parts[k][h][m].unbounded_by.is_empty()).collect();
-            (ScaleMixture::default(), bounded, 1.0)
-        };
-        let within = |p: f64| if p < weight { Some(p / weight) } else { None };
-        if bounded.is_empty() {
-            (median, p95, p05) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
-            mean_square = f64::INFINITY;
-        } else if components == 1 {
-            let dist = GaussNorm::new(&first.mean, &first.cov);
-            if dist.is_deterministic() && first.mean == Vector3::zeros() && !prep.navigated.is_empty() {
-                // No parameter error and no noise: the navigator's own integration error.
-                let e = prep.navigated[0][h][m];
-                (median, p95, p05) = (e, e, e);
-            } else {
-                (median, p95, p05) = (dist.quantile(0.5), dist.quantile(0.95), dist.quantile(0.05));
+        let d = match &prep.distributions {
+            Some(d) => d[h][m],
+            None if !first.unbounded_by.is_empty() => RowDistribution::unbounded(),
+            None => {
+                let dist = GaussNorm::new(&first.mean, &first.cov);
+                let (median, p95, p05) =
+                    if dist.is_deterministic() && first.mean == Vector3::zeros() && !prep.navigated.is_empty() {
+                        // No parameter error and no noise: the navigator's own integration error.
+                        let e = prep.navigated[0][h][m];
+                        (e, e, e)
+                    } else {
+                        (dist.quantile(0.5), dist.quantile(0.95), dist.quantile(0.05))
+                    };
+                RowDistribution { median, p95, p05, median_se: 0.0, p95_se: 0.0, mean_square: dist.mean_square() }
             }
-            mean_square = dist.mean_square();
-        } else {
-            let q = |p: f64| within(p).map_or((f64::INFINITY, 0.0), |p| mix.quantile_with_error(p));
-            ((median, median_se), (p95, p95_se)) = (q(0.5), q(0.95));
-            p05 = within(0.05).map_or(f64::INFINITY, |p| mix.quantile(p));
-            mean_square = if bounded.len() < components {
-                f64::INFINITY
-            } else {
-                parts.iter().zip(w).map(|(c, w)| w * c[h][m].cov.trace()).sum::<f64>() / total_weight
-            };
-        }
+        };
         // Budget: the (weighted) average over components (see [`Prepared::shares`]).
         let shares = &prep.shares[h][m];
         let mut budget: Vec<(Source, f64)> =
@@ -913,17 +950,17 @@ impl Context<'_> {
             compensation: prep.comp,
             metric: m,
             horizon_s: self.horizons_s[h],
-            median,
-            p95,
-            p05,
-            rms: mean_square.sqrt(),
-            median_se,
-            p95_se,
+            median: d.median,
+            p95: d.p95,
+            p05: d.p05,
+            rms: d.mean_square.sqrt(),
+            median_se: d.median_se,
+            p95_se: d.p95_se,
             components,
             unbounded_by: prep.unbounded[h][m].clone(),
             budget,
             nonlinearity,
-            linear: mean_square.is_finite() && nonlinearity <= LINEAR_THRESHOLD,
+            linear: d.mean_square.is_finite() && nonlinearity <= LINEAR_THRESHOLD,
         }
     }
 }
