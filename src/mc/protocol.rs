@@ -32,12 +32,16 @@
 //! clock_rate_offset_ppm = { dist = "normal", sigma = 1300.0 }       # per package (also uniform, fixed)
 //! clock_common_rate_offset_ppm = { dist = "normal", sigma = 65.0 }  # per recording, every package
 //! clock_drift_ppm_per_s = { dist = "uniform", half_width = 0.25 }   # per recording, every package
+//! bias_drift_ug_per_s = { dist = "normal", sigma = 1.5 }           # each accelerometer's bias drift in time
+//! common_bias_drift_ug_per_s = { dist = "normal", mean = -1.6, sigma = 1.1 }  # per recording, every accelerometer
 //! anti_alias_time_constant_ms = 0.0     # first-order filter before each accelerometer's sampling
 //! gyro_anti_alias_time_constant_ms = 0.0   # the gyroscopes' (default: the accelerometers')
 //! ```
 //!
 //! A `fixed` clock distribution takes `value`: one number for every package or one per package
-//! of the array file. Phases are uniform over one clock period.
+//! of the array file. Phases are uniform over one clock period. The bias drift (`selfcal::drift`)
+//! is linear in time about the recording's middle (the truth's bias is the one at mid-recording);
+//! a `fixed` `bias_drift_ug_per_s` takes one value or one per accelerometer.
 //!
 //! The array is an array file (`[array] file = ...`; its ranges clip the simulated outputs), the
 //! form is `tilt` (the parameters of `gfcal calibrate`), and `[noise]` gives the white noise of
@@ -55,11 +59,13 @@ use crate::calib::params::Layout;
 use crate::calib::{Estimate, FitStatus};
 use crate::config::{Bad, OneOrEach, finite, positive};
 use crate::selfcal::calibrate::{CalibrateSettings, calibrate};
+use crate::selfcal::drift::BiasDriftSpread;
 use crate::selfcal::model::{PER_ACCEL, SensorSet};
 use crate::selfcal::sampling::{ClockSpread, Spread};
 use crate::selfcal::simulate::{AntiAlias, FINE_STEP_S, MOTION_BAND_HZ, VIBRATION_BAND_HZ, Vibration};
 use crate::selfcal::simulate::{Protocol, bound_at_truth, project_to_gauge, simulate};
 use crate::selfcal::vibration::LowPass;
+use crate::units::M_S2_PER_UG;
 
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -88,6 +94,8 @@ pub struct ProtocolSection {
     pub clock_rate_offset_ppm: Option<ClockDist>,
     pub clock_common_rate_offset_ppm: Option<ClockDist>,
     pub clock_drift_ppm_per_s: Option<ClockDist>,
+    pub bias_drift_ug_per_s: Option<ClockDist>,
+    pub common_bias_drift_ug_per_s: Option<ClockDist>,
     pub anti_alias_time_constant_ms: Option<f64>,
     pub gyro_anti_alias_time_constant_ms: Option<f64>,
 }
@@ -115,7 +123,9 @@ pub struct ClockDist {
 
 impl ClockDist {
     /// The distribution in SI (`to_si` per display unit), for an array of `packages` packages.
-    fn resolve(&self, key: &str, to_si: f64, packages: usize) -> Result<Spread, Bad> {
+    /// `each`: what a `fixed` list has one value per, and how many there are.
+    fn resolve(&self, key: &str, to_si: f64, each: (&str, usize)) -> Result<Spread, Bad> {
+        let (what, count) = each;
         let k = |s: &str| format!("{key}.{s}");
         let forbid = |name: &str, given: bool, kind: &str| {
             if given { Err(Bad::new(k(name), format!("does not apply to dist = \"{kind}\""))) } else { Ok(()) }
@@ -150,14 +160,11 @@ impl ClockDist {
                 let v = self.value.as_ref().ok_or_else(|| Bad::new(k("value"), "is required for dist = \"fixed\""))?;
                 let values = match v {
                     OneOrEach::One(x) => vec![*x],
-                    OneOrEach::Each(xs) if xs.len() == packages => xs.clone(),
+                    OneOrEach::Each(xs) if xs.len() == count => xs.clone(),
                     OneOrEach::Each(xs) => {
                         return Err(Bad::new(
                             k("value"),
-                            format!(
-                                "needs one value, or one per package of the array file ({packages}), got {}",
-                                xs.len()
-                            ),
+                            format!("needs one value, or one per {what} of the array file ({count}), got {}", xs.len()),
                         ));
                     }
                 };
@@ -346,6 +353,7 @@ impl ProtocolSection {
                 vibration,
                 clocks,
                 anti_alias,
+                bias_drift: self.bias_drift(n)?,
                 fine_step_s: FINE_STEP_S,
             },
             array,
@@ -356,6 +364,22 @@ impl ProtocolSection {
 
 impl ProtocolSection {
     /// The clocks' distributions, checked against the array file: `None` unless `sample_clocks`.
+    /// The accelerometers' bias drift in time (`None` when neither key is given).
+    /// `accelerometers`: how many the array file lists.
+    fn bias_drift(&self, accelerometers: usize) -> Result<Option<BiasDriftSpread>, Bad> {
+        if self.bias_drift_ug_per_s.is_none() && self.common_bias_drift_ug_per_s.is_none() {
+            return Ok(None);
+        }
+        let resolve = |key: &str, d: &Option<ClockDist>, count: usize| match d {
+            Some(d) => d.resolve(key, M_S2_PER_UG, ("accelerometer", count)),
+            None => Ok(Spread::zero()),
+        };
+        Ok(Some(BiasDriftSpread {
+            own: resolve("protocol.bias_drift_ug_per_s", &self.bias_drift_ug_per_s, accelerometers)?,
+            common: resolve("protocol.common_bias_drift_ug_per_s", &self.common_bias_drift_ug_per_s, 1)?,
+        }))
+    }
+
     fn clocks(&self, array: &RecordingArray, host_rate_hz: f64) -> Result<Option<ClockSpread>, Bad> {
         let keys = [
             ("protocol.clock_rate_offset_ppm", self.clock_rate_offset_ppm.is_some()),
@@ -393,15 +417,15 @@ impl ProtocolSection {
         let packages = array.packages.len();
         let ppm = 1e-6;
         let rate_offset = match &self.clock_rate_offset_ppm {
-            Some(d) => d.resolve("protocol.clock_rate_offset_ppm", ppm, packages)?,
+            Some(d) => d.resolve("protocol.clock_rate_offset_ppm", ppm, ("package", packages))?,
             None => Spread::Normal { mean: 0.0, sigma: DEFAULT_RATE_OFFSET_SIGMA_PPM * ppm },
         };
         let common_rate_offset = match &self.clock_common_rate_offset_ppm {
-            Some(d) => d.resolve("protocol.clock_common_rate_offset_ppm", ppm, 1)?,
+            Some(d) => d.resolve("protocol.clock_common_rate_offset_ppm", ppm, ("package", 1))?,
             None => Spread::zero(),
         };
         let drift_per_s = match &self.clock_drift_ppm_per_s {
-            Some(d) => d.resolve("protocol.clock_drift_ppm_per_s", ppm, 1)?,
+            Some(d) => d.resolve("protocol.clock_drift_ppm_per_s", ppm, ("package", 1))?,
             None => Spread::zero(),
         };
         Ok(Some(ClockSpread { rate_offset, common_rate_offset, drift_per_s }))

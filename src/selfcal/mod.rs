@@ -22,6 +22,7 @@ pub mod assessment;
 pub mod calibrate;
 pub mod clock;
 pub mod data;
+pub mod drift;
 pub mod filter;
 pub mod fit;
 pub mod geometry;

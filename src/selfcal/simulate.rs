@@ -21,6 +21,7 @@ use rand::{Rng, RngExt};
 use rand_distr::StandardNormal;
 
 use super::clock::SampleClock;
+use super::drift::{BiasDrift, BiasDriftSpread};
 use super::model::{SampleMotion, SensorSet};
 use super::recording::{Recording, RecordingError};
 use super::sampling::{ClockSpread, FirstOrder, draw_clocks, last_tick_s};
@@ -63,6 +64,9 @@ pub struct Protocol {
     pub clocks: Option<ClockSpread>,
     /// Anti-alias filters before the parts' internal sampling (none by default).
     pub anti_alias: AntiAlias,
+    /// The accelerometers' bias drift in time, drawn per recording ([`super::drift`]; `None`:
+    /// constant biases).
+    pub bias_drift: Option<BiasDriftSpread>,
     /// The time step of the motion's integration when the vibration, the clocks or the filters
     /// are on, s ([`FINE_STEP_S`]).
     pub fine_step_s: f64,
@@ -446,10 +450,12 @@ fn simulate_smooth<R: Rng + ?Sized>(
     let rows = t_s.len();
     let mut outputs = DMatrix::zeros(rows, n);
     let mut buf = vec![0.0; n];
+    let drift = bias_drift(protocol, n, &t_s, rng);
     for (i, m) in motions.iter().enumerate() {
         params.outputs(arr, m, &mut buf);
         for j in 0..n {
-            let noisy = buf[j] + protocol.noise_sigma_m_s2[j] * rng.sample::<f64, _>(StandardNormal);
+            let noisy =
+                drift.added(j, t_s[i], buf[j]) + protocol.noise_sigma_m_s2[j] * rng.sample::<f64, _>(StandardNormal);
             outputs[(i, j)] = noisy.clamp(-array.ranges_m_s2[j], array.ranges_m_s2[j]);
         }
     }
@@ -777,6 +783,15 @@ impl Hand<'_> {
     }
 }
 
+/// One recording's bias drift ([`super::drift`]), drawn here when the protocol has one (no draw otherwise: a recording without it is today's, bit for bit).
+fn bias_drift<R: Rng + ?Sized>(protocol: &Protocol, n: usize, t_s: &[f64], rng: &mut R) -> BiasDrift {
+    let rates = match &protocol.bias_drift {
+        Some(spread) => spread.draw(n, rng),
+        None => vec![],
+    };
+    BiasDrift::new(rates, t_s)
+}
+
 /// The noise-free outputs of every accelerometer (first) and reference gyroscope (after) in a
 /// motion.
 fn signals(array: &RecordingArray, params: &ArrayParams, m: &RigidMotion, out: &mut [f64]) {
@@ -932,9 +947,11 @@ fn simulate_fine<R: Rng + ?Sized>(
     }
     // Noise in today's order: every sample's accelerometers, then each gyroscope's samples.
     let mut outputs = DMatrix::zeros(rows, n);
+    let drift = bias_drift(protocol, n, &lay.t_s, rng);
     for i in 0..rows {
         for j in 0..n {
-            let noisy = clean[(i, j)] + protocol.noise_sigma_m_s2[j] * rng.sample::<f64, _>(StandardNormal);
+            let noisy = drift.added(j, lay.t_s[i], clean[(i, j)])
+                + protocol.noise_sigma_m_s2[j] * rng.sample::<f64, _>(StandardNormal);
             outputs[(i, j)] = noisy.clamp(-array.ranges_m_s2[j], array.ranges_m_s2[j]);
         }
     }

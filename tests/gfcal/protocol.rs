@@ -61,7 +61,17 @@ fn a_protocol_run_calibrates_every_trial_and_records_the_bound_of_every_paramete
 #[test]
 fn bad_protocols_are_refused_naming_the_key() {
     let dir = tempfile::tempdir().unwrap();
-    let cases: [(&str, &str, &str); 9] = [
+    let cases: [(&str, &str, &str); 11] = [
+        (
+            "bias_drift_ug_per_s = { dist = \"normal\", sigma = 1.52 }",
+            "bias_drift_ug_per_s = { dist = \"fixed\", value = [1.0, 2.0] }",
+            "protocol.bias_drift_ug_per_s.value",
+        ),
+        (
+            "common_bias_drift_ug_per_s = { dist = \"normal\", mean = -1.64, sigma = 1.06 }",
+            "common_bias_drift_ug_per_s = { dist = \"normal\", mean = -1.64, sigma = -1.06 }",
+            "protocol.common_bias_drift_ug_per_s.sigma",
+        ),
         ("pose_s = 9.0", "pose_s = 3.0", "protocol.pose_s"),
         ("vibration_band_hz = [2.0, 60.0]", "vibration_band_hz = [60.0, 2.0]", "protocol.vibration_band_hz"),
         (

@@ -41,6 +41,7 @@ pub fn protocol(n: usize) -> Protocol {
         vibration: gfcal::selfcal::simulate::Vibration::default(),
         clocks: None,
         anti_alias: gfcal::selfcal::simulate::AntiAlias::default(),
+        bias_drift: None,
         fine_step_s: gfcal::selfcal::simulate::FINE_STEP_S,
     }
 }

@@ -95,6 +95,7 @@ use gfcal::mc::config::McConfig;
 use gfcal::mc::protocol::ProtocolCell;
 use gfcal::selfcal::calibrate::{CalibrateSettings, Calibration, calibrate, corrected_dynamic, prepare_dynamic};
 use gfcal::selfcal::clock::SampleClock;
+use gfcal::selfcal::drift::BiasDriftSpread;
 use gfcal::selfcal::model::{PER_ACCEL, SensorSet, sensors};
 use gfcal::selfcal::recording::Recording;
 use gfcal::selfcal::sampling::{ClockSpread, Spread};
@@ -985,6 +986,43 @@ fn packages_that_declare_no_clock_are_read_at_the_hosts_instants() {
     .expect("simulated");
     assert!(with.clocks.iter().all(Option::is_some));
     assert_ne!(digest(&with), digest(&b), "declared clocks change the recording");
+}
+
+/// A bias drift adds `rate_j (t - t_mid)` to every output, `t_mid` halfway through the recording,
+/// and nothing else: fixed rates draw nothing at random, so the noise is the same draw with and
+/// without it. On the smooth generator and on the fine grid (vibration on), for drift rates that
+/// differ per accelerometer plus a common one; clipped outputs are left out.
+#[test]
+fn a_bias_drift_adds_its_line_about_the_recordings_middle() {
+    let array = mimu_array();
+    let n = array.array.len();
+    let truth = SensorSet::nominal(n);
+    let own: Vec<f64> = (0..n).map(|j| (j as f64 - 10.0) * 1e-4).collect();
+    let drift = BiasDriftSpread { own: Spread::Fixed(own.clone()), common: Spread::Fixed(vec![3e-4]) };
+    let mut fine = fast_vibrating_protocol(n, 62.5);
+    fine.noise_sigma_m_s2 = vec![0.04; n];
+    for p in [protocol(n), fine] {
+        let a = simulate(&array, &truth, &p, &mut trial_rng(61, 1)).expect("simulated");
+        let with = Protocol { bias_drift: Some(drift.clone()), ..p.clone() };
+        let b = simulate(&array, &truth, &with, &mut trial_rng(61, 1)).expect("simulated");
+        let (ra, rb) = (&a.recording, &b.recording);
+        assert_eq!(ra.t_s, rb.t_s);
+        let t = &ra.t_s;
+        let t_mid = 0.5 * (t[0] + t[t.len() - 1]);
+        let mut checked = 0;
+        for i in 0..ra.samples() {
+            for j in 0..n {
+                if ra.is_clipped(i, j) || rb.is_clipped(i, j) {
+                    continue;
+                }
+                let expected = (own[j] + 3e-4) * (t[i] - t_mid);
+                let moved = rb.outputs[(i, j)] - ra.outputs[(i, j)];
+                assert!((moved - expected).abs() < 1e-12, "sample {i}, accelerometer {j}: {moved} vs {expected}");
+                checked += 1;
+            }
+        }
+        assert!(checked > ra.samples() * n * 9 / 10);
+    }
 }
 
 /// For checking an estimator of the clocks by hand: writes one simulated recording of the
