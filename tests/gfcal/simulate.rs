@@ -1010,12 +1010,12 @@ fn a_bias_drift_adds_its_line_about_the_recordings_middle() {
         let t = &ra.t_s;
         let t_mid = 0.5 * (t[0] + t[t.len() - 1]);
         let mut checked = 0;
-        for i in 0..ra.samples() {
-            for j in 0..n {
+        for (i, t_i) in t.iter().enumerate() {
+            for (j, own_j) in own.iter().enumerate() {
                 if ra.is_clipped(i, j) || rb.is_clipped(i, j) {
                     continue;
                 }
-                let expected = (own[j] + 3e-4) * (t[i] - t_mid);
+                let expected = (own_j + 3e-4) * (t_i - t_mid);
                 let moved = rb.outputs[(i, j)] - ra.outputs[(i, j)];
                 assert!((moved - expected).abs() < 1e-12, "sample {i}, accelerometer {j}: {moved} vs {expected}");
                 checked += 1;
