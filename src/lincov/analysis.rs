@@ -615,23 +615,41 @@ impl Context<'_> {
         }
     }
 
-    fn estimated(&self) -> Result<Prepared, LincovError> {
-        let (cell, settings, blocks) = (self.cell, self.settings, &self.blocks);
+    /// A truth's Gaussian per (horizon, metric) block from its parameter covariance held as one
+    /// block per accelerometer: every block's `S C S^T` at once.
+    fn parts_from_blocks(&self, stacked: &StackedBlocks, blocks: &[ParamBlock]) -> Vec<Vec<Part>> {
+        let covs = stacked.covariances(blocks);
+        let per_horizon = self.blocks.first().map_or(0, Vec::len);
+        (0..self.blocks.len())
+            .map(|h| {
+                (0..per_horizon)
+                    .map(|m| Part {
+                        cov: covs[h * per_horizon + m] + self.noise_var * self.blocks[h][m].noise_unit,
+                        mean: Vector3::zeros(),
+                        unbounded_by: vec![],
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// The truths `xs` calibrated one by one on the whole covariance (a fixture error, or a
+    /// truth where the schedule loses a parameter), with their null directions: each truth's
+    /// Gaussians and weight (`None`: excluded), and the weighted sum of their covariances. One
+    /// truth (fixed errors) finds its null directions by eigenvalues, as `gfcal identify` does;
+    /// a mixture inverts each truth by Cholesky, by eigenvalues only where that fails.
+    fn calibrate_one_by_one(
+        &self,
+        xs: &[DVector<f64>],
+        x_ref: &DVector<f64>,
+    ) -> (Vec<Option<TruthParts>>, WeightedSum) {
+        let cell = self.cell;
         let layout = &cell.layout;
-        let horizons = blocks.len();
-        let x_ref = reference(cell);
-        let xs = truths(cell, self.seed, settings.truths.max(1));
-        // One truth (fixed errors): its null directions by eigenvalues, as `gfcal identify`
-        // finds them. A mixture: each truth by Cholesky, its null directions only where that
-        // fails (a truth where the schedule loses a parameter).
         let single = xs.len() == 1;
-        let target = crate::calib::fisher::Targets::default().si(layout, &x_ref);
+        let target = crate::calib::fisher::Targets::default().si(layout, x_ref);
         let perfect = cell.calibration.pose.is_perfect();
-        // The region the Monte Carlo's fits are refused outside of.
         let bounds = crate::calib::estimate::small_error_bounds(layout);
         let p = layout.len();
-        let motions = step_motions(&cell.schedule, cell.calibration.gravity_m_s2);
-        let blocks_per_horizon = blocks.first().map_or(0, Vec::len);
         // Chunks of truths in parallel, each summing its truths' weighted covariances in order
         // (the budget's mean covariance: the same bits on any number of threads).
         let per_chunk: Vec<(Vec<Option<TruthParts>>, WeightedSum)> = xs
@@ -641,35 +659,6 @@ impl Context<'_> {
                 let parts = chunk
                     .iter()
                     .map(|x| {
-                        // A perfect fixture's truth block by block on the stack, where every block
-                        // is positive definite (the same bits as the whole covariance).
-                        let fast = match (&self.stacked, single) {
-                            (Some(stacked), false) => {
-                                block_covariances(cell, x, self.density, &motions).map(|blocks| (stacked, blocks))
-                            }
-                            _ => None,
-                        };
-                        if let Some((stacked, mut blocks)) = fast {
-                            let weight = stay_in_small_error_region_blocks(&mut blocks, x, &bounds);
-                            if weight.is_nan() || weight <= 0.0 {
-                                return None;
-                            }
-                            sum.add_blocks(&blocks, weight);
-                            let covs = stacked.covariances(&blocks);
-                            let parts = (0..horizons)
-                                .map(|h| {
-                                    (0..blocks_per_horizon)
-                                        .map(|m| Part {
-                                            cov: covs[h * blocks_per_horizon + m]
-                                                + self.noise_var * self.blocks[h][m].noise_unit,
-                                            mean: Vector3::zeros(),
-                                            unbounded_by: vec![],
-                                        })
-                                        .collect()
-                                })
-                                .collect();
-                            return Some((parts, weight));
-                        }
                         let mut cal = calibration_with(cell, x, self.density, single);
                         let fixture = (!perfect).then_some(&mut cal.fixture);
                         let weight = stay_in_small_error_region(&mut cal.covariance, fixture, x, &bounds);
@@ -711,6 +700,35 @@ impl Context<'_> {
             sum.merge(&chunk_sum);
             per_truth.extend(parts);
         }
+        (per_truth, sum)
+    }
+
+    fn estimated(&self, calibrated: Option<&CalibratedTruths>) -> Result<Prepared, LincovError> {
+        let (cell, settings, blocks) = (self.cell, self.settings, &self.blocks);
+        let layout = &cell.layout;
+        let horizons = blocks.len();
+        let x_ref = reference(cell);
+        // The truths calibrated before the linearisation where they could be, block by block;
+        // here, one by one, otherwise.
+        let (drawn, per_truth, sum) = match (calibrated, &self.stacked) {
+            (Some(c), Some(stacked)) => {
+                let parts = c
+                    .blocks
+                    .par_iter()
+                    .map(|t| t.as_ref().map(|(b, weight)| (self.parts_from_blocks(stacked, b), *weight)))
+                    .collect();
+                (std::borrow::Cow::Borrowed(&c.xs), parts, c.sum.clone())
+            }
+            _ => {
+                let xs = truths(cell, self.seed, settings.truths.max(1));
+                let (parts, sum) = self.calibrate_one_by_one(&xs, &x_ref);
+                (std::borrow::Cow::Owned(xs), parts, sum)
+            }
+        };
+        let xs = drawn.as_ref();
+        let single = xs.len() == 1;
+        // The region the Monte Carlo's fits are refused outside of.
+        let bounds = crate::calib::estimate::small_error_bounds(layout);
         let excluded = per_truth.iter().filter(|p| p.is_none()).count();
         let kept: Vec<usize> = (0..xs.len()).filter(|&k| per_truth[k].is_some()).collect();
         let xs: Vec<DVector<f64>> = kept.iter().map(|&k| xs[k].clone()).collect();
@@ -974,6 +992,7 @@ const TRUTH_CHUNK: usize = 32;
 
 /// The weighted sum of a mixture's parameter covariances (and of their fixture parts), for the
 /// budget ([`Prepared::shares`]). Block by block where the covariances are block-diagonal.
+#[derive(Clone)]
 struct WeightedSum {
     cov: DMatrix<f64>,
     /// Empty for a perfect fixture.
@@ -1048,14 +1067,79 @@ impl WeightedSum {
 /// Analyses one cell (see the module docs of [`super`]). `lin` is the cell's linearisation.
 /// The compensations, the truths of a mixture, the probes' navigations and the rows run in
 /// parallel; every number is a function of the cell and seed alone.
+/// The estimated compensation's drawn truths calibrated before the navigation is linearised (they
+/// do not need it, so [`super::run`] calibrates them beside the linearisation): a mixture with a
+/// perfect fixture, each truth's covariance as one block per accelerometer, shrunk to the
+/// small-error region, with its weight (`None`: excluded), and the weighted sum of them for the
+/// budget (summed in fixed chunks, in order: the same bits on any number of threads).
+pub struct CalibratedTruths {
+    xs: Vec<DVector<f64>>,
+    blocks: Vec<Option<(Vec<ParamBlock>, f64)>>,
+    sum: WeightedSum,
+}
+
+/// [`CalibratedTruths`] of `cell`'s estimated compensation; `None` where it has none, where its
+/// errors are fixed (one truth), with a fixture error or without noise, or where some truth's
+/// block is not positive definite (a schedule that loses a parameter there): the analysis then
+/// calibrates the truths one by one, with their null directions.
+pub fn calibrate_truths(cell: &Cell, seed: u64, settings: &Settings) -> Option<CalibratedTruths> {
+    let density = cell.noise.white.density_m_s2_per_sqrt_hz();
+    let p = cell.layout.len();
+    if !cell.navigation.compensations.contains(&Compensation::Estimated)
+        || !cell.calibration.pose.is_perfect()
+        || density <= 0.0
+        || p == 0
+        || p % PER_ACCEL != 0
+    {
+        return None;
+    }
+    let xs = truths(cell, seed, settings.truths.max(1));
+    if xs.len() < 2 {
+        return None;
+    }
+    let motions = step_motions(&cell.schedule, cell.calibration.gravity_m_s2);
+    let bounds = crate::calib::estimate::small_error_bounds(&cell.layout);
+    type Chunk = (Vec<Option<(Vec<ParamBlock>, f64)>>, WeightedSum);
+    let per_chunk: Vec<Option<Chunk>> = xs
+        .par_chunks(TRUTH_CHUNK)
+        .map(|chunk| {
+            let mut sum = WeightedSum::new(p, true);
+            let mut out = Vec::with_capacity(chunk.len());
+            for x in chunk {
+                let mut blocks = block_covariances(cell, x, density, &motions)?;
+                let weight = stay_in_small_error_region_blocks(&mut blocks, x, &bounds);
+                if weight.is_nan() || weight <= 0.0 {
+                    out.push(None);
+                    continue;
+                }
+                sum.add_blocks(&blocks, weight);
+                out.push(Some((blocks, weight)));
+            }
+            Some((out, sum))
+        })
+        .collect();
+    let mut sum = WeightedSum::new(p, true);
+    let mut blocks = Vec::with_capacity(xs.len());
+    for chunk in per_chunk {
+        let (out, chunk_sum) = chunk?;
+        sum.merge(&chunk_sum);
+        blocks.extend(out);
+    }
+    Some(CalibratedTruths { xs, blocks, sum })
+}
+
+/// Analyses one cell, navigated as `lin` and `grid` say; `calibrated`: its truths, where
+/// [`calibrate_truths`] has them already (otherwise they are calibrated here).
 pub fn analyse_cell(
     cell: &Cell,
     lin: &Linearisation,
     seed: u64,
     settings: &Settings,
     grid: Option<&Arc<MotionGrid>>,
+    calibrated: Option<CalibratedTruths>,
 ) -> Result<CellResult, LincovError> {
     check(cell)?;
+    let calibrated = calibrated.or_else(|| calibrate_truths(cell, seed, settings));
     let nav = &cell.navigation;
     let horizons = lin.horizons_s.len();
     let density = cell.noise.white.density_m_s2_per_sqrt_hz();
@@ -1080,7 +1164,7 @@ pub fn analyse_cell(
         .map(|comp| match comp {
             Compensation::Nominal => Ok(ctx.nominal()),
             Compensation::True => Ok(ctx.true_noise()),
-            Compensation::Estimated => ctx.estimated(),
+            Compensation::Estimated => ctx.estimated(calibrated.as_ref()),
         })
         .collect::<Result<_, _>>()?;
     // Every compensation's rows at once, in order.

@@ -7,7 +7,9 @@ use std::sync::Arc;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::analysis::{CellResult, LincovError, Settings, analyse_cell, check, linearisation};
+use super::analysis::{
+    CalibratedTruths, CellResult, LincovError, Settings, analyse_cell, calibrate_truths, check, linearisation,
+};
 use super::dynamics::Linearisation;
 use super::sources::reference;
 use crate::mc::{Cell, McConfig};
@@ -41,7 +43,14 @@ pub fn analyse(cfg: &McConfig, settings: &Settings) -> Result<Vec<CellResult>, L
         .enumerate()
         .map(|(i, c)| (0..i).find(|&k| navigate_alike(&cfg.cells[k], c)).unwrap_or(i))
         .collect();
-    let shared: Vec<Option<(Arc<Linearisation>, Arc<MotionGrid>)>> = cfg
+    // Each group's linearisation and motion grid, beside its leader's truths (their
+    // calibrations do not need the navigation: a single cell's threads stay busy). Only where the
+    // groups are fewer than the threads: otherwise they fill the threads themselves, and every
+    // leader's truths would be held at once.
+    let groups = (0..leader.len()).filter(|&i| leader[i] == i).count();
+    let beside = groups <= rayon::current_num_threads();
+    type Shared = (Arc<Linearisation>, Arc<MotionGrid>);
+    let shared: Vec<Option<(Shared, std::sync::Mutex<Option<CalibratedTruths>>)>> = cfg
         .cells
         .par_iter()
         .enumerate()
@@ -49,19 +58,27 @@ pub fn analyse(cfg: &McConfig, settings: &Settings) -> Result<Vec<CellResult>, L
             if leader[i] != i {
                 return Ok(None);
             }
-            let lin = linearisation(cell)?;
-            let nav = &cell.navigation;
-            let gravity_i = Vector3::new(0.0, 0.0, -cell.calibration.gravity_m_s2);
-            let grid = MotionGrid::new(&nav.trajectory, &gravity_i, nav.step_s, &nav.horizons_s);
-            Ok(Some((Arc::new(lin), Arc::new(grid))))
+            let (navigation, calibrated) = rayon::join(
+                || -> Result<Shared, LincovError> {
+                    let lin = linearisation(cell)?;
+                    let nav = &cell.navigation;
+                    let gravity_i = Vector3::new(0.0, 0.0, -cell.calibration.gravity_m_s2);
+                    let grid = MotionGrid::new(&nav.trajectory, &gravity_i, nav.step_s, &nav.horizons_s);
+                    Ok((Arc::new(lin), Arc::new(grid)))
+                },
+                || if beside { calibrate_truths(cell, cfg.seed, settings) } else { None },
+            );
+            Ok(Some((navigation?, std::sync::Mutex::new(calibrated))))
         })
         .collect::<Result<_, LincovError>>()?;
     cfg.cells
         .par_iter()
         .enumerate()
         .map(|(i, cell)| {
-            let (lin, grid) = shared[leader[i]].as_ref().expect("every leader is linearised");
-            analyse_cell(cell, lin, cfg.seed, settings, Some(grid))
+            let ((lin, grid), calibrated) = shared[leader[i]].as_ref().expect("every leader is linearised");
+            // The leader's own truths (taken once); the others calibrate theirs.
+            let own = if leader[i] == i { calibrated.lock().ok().and_then(|mut c| c.take()) } else { None };
+            analyse_cell(cell, lin, cfg.seed, settings, Some(grid), own)
         })
         .collect()
 }
