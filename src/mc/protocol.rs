@@ -5,6 +5,7 @@
 //! ```toml
 //! [protocol]
 //! poses = 20                  # static poses placed by hand (random directions)
+//! pose_up = [[0.0, -0.93, 0.36], ...]   # or their up directions (array axes), one per pose, in order
 //! pose_s = 22.0               # still time per pose
 //! transition_s = 3.0          # carrying the board between poses
 //! dynamic_s = 100.0           # the rotation phase
@@ -71,6 +72,7 @@ use crate::units::M_S2_PER_UG;
 #[serde(deny_unknown_fields)]
 pub struct ProtocolSection {
     pub poses: usize,
+    pub pose_up: Option<Vec<[f64; 3]>>,
     pub pose_s: f64,
     pub transition_s: f64,
     pub dynamic_s: f64,
@@ -339,6 +341,7 @@ impl ProtocolSection {
         Ok(ProtocolCell {
             protocol: Protocol {
                 poses: self.poses,
+                pose_up: self.pose_up()?,
                 pose_s,
                 transition_s: positive("protocol.transition_s", self.transition_s)?,
                 dynamic_s,
@@ -365,6 +368,31 @@ impl ProtocolSection {
 impl ProtocolSection {
     /// The clocks' distributions, checked against the array file: `None` unless `sample_clocks`.
     /// The accelerometers' bias drift in time (`None` when neither key is given).
+    /// The poses' up directions (unit vectors, array axes), one per pose in their order.
+    fn pose_up(&self) -> Result<Option<Vec<nalgebra::Vector3<f64>>>, Bad> {
+        let Some(ups) = &self.pose_up else { return Ok(None) };
+        if ups.len() != self.poses {
+            return Err(Bad::new(
+                "protocol.pose_up",
+                format!(
+                    "lists {} directions for protocol.poses = {} (one per pose, in their order)",
+                    ups.len(),
+                    self.poses
+                ),
+            ));
+        }
+        let mut out = Vec::with_capacity(ups.len());
+        for (i, u) in ups.iter().enumerate() {
+            let key = format!("protocol.pose_up[{i}]");
+            let v = nalgebra::Vector3::new(finite(&key, u[0])?, finite(&key, u[1])?, finite(&key, u[2])?);
+            if v.norm() < 1e-6 {
+                return Err(Bad::new(key, "is not a direction (zero length)"));
+            }
+            out.push(v.normalize());
+        }
+        Ok(Some(out))
+    }
+
     /// `accelerometers`: how many the array file lists.
     fn bias_drift(&self, accelerometers: usize) -> Result<Option<BiasDriftSpread>, Bad> {
         if self.bias_drift_ug_per_s.is_none() && self.common_bias_drift_ug_per_s.is_none() {

@@ -36,6 +36,10 @@ use crate::sensor::params::{ArrayParams, SensorParams};
 #[derive(Debug, Clone, PartialEq)]
 pub struct Protocol {
     pub poses: usize,
+    /// The poses' up directions in array axes, in their order (`None`: random directions). A
+    /// board placed by hand on the faces of a solid, in a fixed order, is not placed at random:
+    /// the order decides how a bias drift in time aliases into the scale factors and tilts.
+    pub pose_up: Option<Vec<Vector3<f64>>>,
     pub pose_s: f64,
     pub transition_s: f64,
     pub dynamic_s: f64,
@@ -269,6 +273,25 @@ fn project_locations_to_groups(array: &crate::array::Array, groups: &[usize], t:
     }
 }
 
+/// The poses' attitudes (body to inertial): random, or with their up directions
+/// [`Protocol::pose_up`] (each turned about the vertical by its random draw's heading: the same
+/// draws either way).
+fn pose_attitudes<R: Rng + ?Sized>(protocol: &Protocol, rng: &mut R) -> Vec<UnitQuaternion<f64>> {
+    let drawn: Vec<UnitQuaternion<f64>> = (0..protocol.poses).map(|_| random_attitude(rng)).collect();
+    let Some(ups) = &protocol.pose_up else { return drawn };
+    drawn
+        .iter()
+        .zip(ups.iter().cycle())
+        .map(|(q, up)| {
+            // Body `up` to the inertial vertical, then the drawn attitude's heading about it.
+            let level = UnitQuaternion::rotation_between(&up.normalize(), &Vector3::z())
+                .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI));
+            let x = q * Vector3::x();
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), x.y.atan2(x.x)) * level
+        })
+        .collect()
+}
+
 fn random_attitude<R: Rng + ?Sized>(rng: &mut R) -> UnitQuaternion<f64> {
     let mut g = || rng.sample::<f64, _>(StandardNormal);
     UnitQuaternion::from_quaternion(Quaternion::new(g(), g(), g(), g()))
@@ -368,7 +391,7 @@ fn simulate_smooth<R: Rng + ?Sized>(
     let params = true_params(array, truth);
     let dt = 1.0 / protocol.sample_rate_hz;
     let g_i = Vector3::new(0.0, 0.0, -protocol.gravity_m_s2);
-    let attitudes: Vec<UnitQuaternion<f64>> = (0..protocol.poses).map(|_| random_attitude(rng)).collect();
+    let attitudes = pose_attitudes(protocol, rng);
     let rate = Smooth::new(protocol.rate_rms_rad_s, protocol.motion_band_hz, rng);
     let accel = Smooth::new(protocol.accel_rms_m_s2, protocol.accel_band_hz.unwrap_or(protocol.motion_band_hz), rng);
     let ramp_s = 2.0;
@@ -817,7 +840,7 @@ fn simulate_fine<R: Rng + ?Sized>(
     let params = true_params(array, truth);
     let g_i = Vector3::new(0.0, 0.0, -protocol.gravity_m_s2);
     // The same draws as today's, in the same order, then the new ones.
-    let attitudes: Vec<UnitQuaternion<f64>> = (0..protocol.poses).map(|_| random_attitude(rng)).collect();
+    let attitudes = pose_attitudes(protocol, rng);
     let rate = Smooth::new(protocol.rate_rms_rad_s, protocol.motion_band_hz, rng);
     let accel = Smooth::new(protocol.accel_rms_m_s2, protocol.accel_band_hz.unwrap_or(protocol.motion_band_hz), rng);
     let lay = layout(protocol);

@@ -27,6 +27,7 @@ pub fn mimu_array() -> RecordingArray {
 pub fn protocol(n: usize) -> Protocol {
     Protocol {
         poses: 12,
+        pose_up: None,
         pose_s: 8.0,
         transition_s: 1.5,
         dynamic_s: 30.0,

@@ -988,6 +988,38 @@ fn packages_that_declare_no_clock_are_read_at_the_hosts_instants() {
     assert_ne!(digest(&with), digest(&b), "declared clocks change the recording");
 }
 
+/// Poses placed on listed up directions are held there: the simulator's own up direction at the
+/// middle of every pose is the listed one (normalised), on the smooth generator and on the fine
+/// grid (vibration on), and the gravity the outputs see is along it.
+#[test]
+fn poses_on_listed_directions_hold_them() {
+    let array = mimu_array();
+    let n = array.array.len();
+    let listed = [
+        Vector3::new(0.0, -0.9342, 0.3568),
+        Vector3::new(1.0, -1.0, 1.0),
+        Vector3::new(0.0, 0.0, -2.0),
+        Vector3::new(0.0, 0.0, 1.0),
+    ];
+    let mut fine = fast_vibrating_protocol(n, 62.5);
+    fine.pose_s = 2.0;
+    for mut p in [protocol(n), fine] {
+        p.poses = listed.len();
+        p.pose_up = Some(listed.to_vec());
+        let sim = simulate(&array, &SensorSet::nominal(n), &p, &mut trial_rng(71, 1)).expect("simulated");
+        let t = &sim.recording.t_s;
+        for (k, want) in listed.iter().enumerate() {
+            let mid_s = k as f64 * (p.pose_s + p.transition_s) + 0.5 * p.pose_s;
+            let i = t.iter().position(|&ti| ti >= mid_s).expect("the pose's middle is sampled");
+            let (up, want) = (sim.up[i], want.normalize());
+            assert!((up - want).norm() < 1e-12, "pose {k}: up {up:?}, listed {want:?}");
+            // Still: the specific force is gravity, up.
+            let f = sim.motion[i].f_m_s2;
+            assert!((f - want * p.gravity_m_s2).norm() < 1e-9, "pose {k}: specific force {f:?}");
+        }
+    }
+}
+
 /// A bias drift adds `rate_j (t - t_mid)` to every output, `t_mid` halfway through the recording,
 /// and nothing else: fixed rates draw nothing at random, so the noise is the same draw with and
 /// without it. On the smooth generator and on the fine grid (vibration on), for drift rates that
