@@ -1089,7 +1089,7 @@ pub fn calibrate_truths(cell: &Cell, seed: u64, settings: &Settings) -> Option<C
         || !cell.calibration.pose.is_perfect()
         || density <= 0.0
         || p == 0
-        || p % PER_ACCEL != 0
+        || !p.is_multiple_of(PER_ACCEL)
     {
         return None;
     }
