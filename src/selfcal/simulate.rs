@@ -36,7 +36,9 @@ use crate::sensor::params::{ArrayParams, SensorParams};
 #[derive(Debug, Clone, PartialEq)]
 pub struct Protocol {
     pub poses: usize,
-    /// The poses' up directions in array axes, in their order (`None`: random directions). A
+    /// The poses' up directions in array axes, in their order, taken again from the first if
+    /// there are fewer than [`Self::poses`] (`None`: random directions; a config must list one per
+    /// pose). A
     /// board placed by hand on the faces of a solid, in a fixed order, is not placed at random:
     /// the order decides how a bias drift in time aliases into the scale factors and tilts.
     pub pose_up: Option<Vec<Vector3<f64>>>,
