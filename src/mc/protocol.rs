@@ -1,6 +1,6 @@
 //! A `gfcal run` cell on the hand-held protocol of a real array (`selfcal`): poses placed by hand
-//! in random directions, then a smooth random rotation phase, calibrated with no rate table and
-//! (unless `use_gyro`) no gyroscope. Replaces `[schedule]` in a run config:
+//! in random or listed directions, then a smooth random rotation phase, calibrated with no rate
+//! table and (unless `use_gyro`) no gyroscope. Replaces `[schedule]` in a run config:
 //!
 //! ```toml
 //! [protocol]

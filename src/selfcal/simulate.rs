@@ -1,5 +1,6 @@
-//! Simulated free-calibration recordings: poses placed by hand in random directions, each held
-//! still, carried to the next by a smooth rotation, then a smooth random rotation phase. The
+//! Simulated free-calibration recordings: poses placed by hand in random directions (or listed
+//! ones, [`Protocol::pose_up`]), each held still, carried to the next by a smooth rotation, then a
+//! smooth random rotation phase. The
 //! outputs come from the engine's own sensor model (`sensor::params::ArrayParams::outputs` on a
 //! `motion::RigidMotion`), not from `selfcal::model`, so a fit of these recordings is checked
 //! against an independent generator.
@@ -12,7 +13,8 @@
 //! sit before each part's internal sampling ([`AntiAlias`]). With any of them on, the motion is
 //! integrated on a fine grid ([`Protocol::fine_step_s`], 0.1 ms: see [`FINE_STEP_S`]) and every part is
 //! read at its package's own instant; with all of them off the recording is today's, bit for bit
-//! (the same code, the same random draws).
+//! (the same code, the same random draws). A bias drift in time ([`super::drift`], off by default)
+//! is added to every accelerometer output after the motion.
 
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord, clippy::useless_vec)]
 
