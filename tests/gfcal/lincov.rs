@@ -197,8 +197,9 @@ fn budget_shares_sum_to_the_total_and_a_switched_off_source_gives_zero() {
 
 /// A run is a function of its config and seed: the same rows, bit for bit, on 1 and on 3 threads
 /// (the compensations, truths, probes and rows of a cell run in parallel), for the quickstart
-/// (weighted truths, probes at a tail truth) and for a config with the `true` compensation, a
-/// tilted fixture and navigation noise.
+/// (weighted truths, probes at a tail truth), for a config with the `true` compensation, a
+/// tilted fixture and navigation noise, and for two cells that navigate apart (their truths
+/// calibrated beside their linearisations on 3 threads, in their own analyses on 1).
 #[test]
 fn the_same_rows_bit_for_bit_on_one_and_on_three_threads() {
     let bits = |results: &[CellResult]| -> Vec<u64> {
@@ -215,9 +216,15 @@ fn the_same_rows_bit_for_bit_on_one_and_on_three_threads() {
         }
         out
     };
-    for (name, text, truths) in
-        [("quickstart", shipped("quickstart.toml", 1, &[]), 256), ("budget", BUDGET.to_string(), 64)]
-    {
+    // Two cells that navigate apart (two groups): on 1 thread each calibrates its truths in its own
+    // analysis, on 3 beside its linearisation; the same bits either way.
+    let two_groups =
+        shipped("quickstart.toml", 1, &[]) + "\n[[sweep.factor]]\nkey = \"navigation.step_s\"\nlevels = [0.01, 0.02]\n";
+    for (name, text, truths) in [
+        ("quickstart", shipped("quickstart.toml", 1, &[]), 256),
+        ("budget", BUDGET.to_string(), 64),
+        ("two groups", two_groups, 64),
+    ] {
         let cfg = load(&text);
         let on = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
@@ -225,6 +232,7 @@ fn the_same_rows_bit_for_bit_on_one_and_on_three_threads() {
         };
         let (one, three) = (on(1), on(3));
         assert!(one.iter().all(|c| !c.rows.is_empty()), "{name}: rows");
+        assert_eq!(one.len(), if name == "two groups" { 2 } else { 1 }, "{name}: cells");
         assert!(bits(&one) == bits(&three), "{name}: rows differ between 1 and 3 threads");
     }
 }
