@@ -1208,7 +1208,8 @@ fn stay_in_small_error_region(
         weight *= inside;
         let beta: Vec<f64> = (0..cov.nrows()).map(|k| cov[(k, i)] / var).collect();
         for m in [Some(&mut *cov), fixture.as_deref_mut()].into_iter().flatten() {
-            shrink_along(m, &beta, i, shrink);
+            let n = m.nrows();
+            shrink_along(m, n, &beta, i, shrink);
         }
     }
     weight
@@ -1229,14 +1230,7 @@ fn stay_in_small_error_region_blocks(blocks: &mut [ParamBlock], x: &DVector<f64>
             };
             weight *= inside;
             let beta: [f64; PER_ACCEL] = std::array::from_fn(|k| m[(k, i)] / var);
-            let (row_i, col_i): ([f64; PER_ACCEL], [f64; PER_ACCEL]) =
-                (std::array::from_fn(|c| m[(i, c)]), std::array::from_fn(|r| m[(r, i)]));
-            let mii = m[(i, i)];
-            for c in 0..PER_ACCEL {
-                for r in 0..PER_ACCEL {
-                    m[(r, c)] += shrink * (shrink * beta[r] * mii * beta[c] - beta[r] * row_i[c] - col_i[r] * beta[c]);
-                }
-            }
+            shrink_along(m, PER_ACCEL, &beta, i, shrink);
         }
     }
     weight
@@ -1279,8 +1273,13 @@ fn stay(var: f64, x: f64, r: f64) -> Stay {
     Stay::Within { inside, shrink: 1.0 - second_moment.max(0.0).sqrt() }
 }
 
-fn shrink_along(m: &mut DMatrix<f64>, beta: &[f64], i: usize, shrink: f64) {
-    let n = m.nrows();
+fn shrink_along<M: std::ops::IndexMut<(usize, usize), Output = f64>>(
+    m: &mut M,
+    n: usize,
+    beta: &[f64],
+    i: usize,
+    shrink: f64,
+) {
     let active: Vec<usize> = (0..n).filter(|&r| beta[r] != 0.0 || m[(r, i)] != 0.0 || m[(i, r)] != 0.0).collect();
     let row_i: Vec<f64> = active.iter().map(|&c| m[(i, c)]).collect();
     let col_i: Vec<f64> = active.iter().map(|&r| m[(r, i)]).collect();
