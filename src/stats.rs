@@ -1,4 +1,4 @@
-//! Shared statistics: the tails of the chi-square and F distributions, the pseudo-inverse of a
+//! Shared statistics: the tails of the chi-square and F distributions, the median, the pseudo-inverse of a
 //! symmetric positive semi-definite matrix, and the Wald test built from them.
 //!
 //! Each tail returns `None` where the distribution does not exist (zero or non-finite degrees
@@ -20,6 +20,18 @@ pub fn chi2_quantile(p: f64, dof: f64) -> Option<f64> {
 /// `P(X > x)` for `X ~ F(df1, df2)`; `None` when the degrees of freedom are not valid.
 pub fn f_sf(x: f64, df1: f64, df2: f64) -> Option<f64> {
     FisherSnedecor::new(df1, df2).ok().map(|d| d.sf(x))
+}
+
+/// The median of the finite values (the mean of the middle two for an even count); NaN where none
+/// is finite.
+pub fn median(values: &[f64]) -> f64 {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
 }
 
 /// Pseudo-inverse of a symmetric positive semi-definite matrix, scaled by its diagonal first so

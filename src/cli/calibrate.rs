@@ -206,6 +206,30 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
             }
         );
     }
+    if let Some(d) = &cal.static_drift {
+        let printed = |j, p| fit.sigma(j, p);
+        let over = gfcal::selfcal::static_drift::sigma_over_printed(d, &printed);
+        let moves = gfcal::selfcal::static_drift::moves_in_printed_sigmas(d, &fit.params, &printed);
+        let _ = writeln!(
+            s,
+            "static phase refitted with a bias drift in time (poses held): drift median {:.2e} m/s^2/s; chi2/dof {:.2} (without {:.2}); the drift's test chi2 {:.1} on {} dof (p = {:.1e}){}; with it scale factor, bias, tilt_u and tilt_w move by {:.1}, {:.1}, {:.1}, {:.1} printed sigmas RMS, their sigmas {:.1}, {:.1}, {:.1}, {:.1} times the printed (median)",
+            gfcal::stats::median(&d.rate_m_s2_per_s),
+            d.chi2_dof,
+            d.chi2_dof_without,
+            d.test_chi2,
+            d.test_dof,
+            d.p_value,
+            if d.drifts() { ": the biases drift in time, which the joint fit leaves out" } else { "" },
+            moves[0],
+            moves[1],
+            moves[2],
+            moves[3],
+            over[0],
+            over[1],
+            over[2],
+            over[3]
+        );
+    }
     if let Some(c) = &cal.clocks {
         let _ = writeln!(
             s,

@@ -116,14 +116,8 @@ fn read_samples(dir: &Path, cells: usize, cap: usize) -> Result<Vec<Sample>, Par
     Ok(out)
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.retain(|x| x.is_finite());
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+fn median(v: Vec<f64>) -> f64 {
+    crate::stats::median(&v)
 }
 
 /// Which parameters of a cell are weak (by name), from the summary's RMS Cramer-Rao sigmas.

@@ -14,6 +14,11 @@
 //!   (`selfcal::tension`, its pull's p-value below [`super::tension::PULL_P_LEVEL`]) are not
 //!   trustworthy, whatever the static misfit (that level chosen after the real recording 4 was
 //!   seen);
+//! - scale factors, biases and tilts are not trustworthy where the biases drift in time
+//!   (`selfcal::static_drift`, its test's p-value below [`super::static_drift::DRIFT_P_LEVEL`],
+//!   the tension's level, set before the check met a recording): the joint fit does not model the
+//!   drift, which goes into them on a pose sequence that moves steadily with time, and the reason
+//!   says how much wider the static phase's sigmas are with the drift fitted;
 //! - the gyroscope-free rate is trustworthy only when it meets the gyroscopes within
 //!   [`RATE_LIMIT`] (RMS difference over RMS rate), when the array has gyroscopes.
 
@@ -21,6 +26,7 @@
 
 use super::calibrate::Calibration;
 use super::model::PER_ACCEL;
+use super::static_drift::{StaticDrift, moves_in_printed_sigmas, sigma_over_printed};
 use super::tension::StaticTension;
 
 /// Misfit (chi^2/dof) above which a phase is not fitted by the model.
@@ -72,6 +78,24 @@ fn pull_reason(t: &StaticTension, static_x: f64) -> Option<String> {
     })
 }
 
+/// Why scale factors, biases and tilts are not trustworthy when the biases drift in time (`None`
+/// when the test does not reject); `moves` from [`moves_in_printed_sigmas`], `over_printed` from
+/// [`sigma_over_printed`].
+fn drift_reason(d: &StaticDrift, moves: &[f64; 4], over_printed: &[f64; 4]) -> Option<String> {
+    d.drifts().then(|| {
+        let list = |v: &[f64; 4]| v.iter().map(|x| times(*x)).collect::<Vec<_>>().join(", ");
+        format!(
+            "not trustworthy: the biases drift in time (median {:.2e} m/s^2/s; it lowers the static chi^2 by {} on {} dof, p = {:.1e}), which the joint fit leaves out; the static phase refitted with the drift moves scale factor, bias, tilt_u and tilt_w by {} printed sigmas RMS, with sigmas {} times the printed (median): its values are in the JSON's static.bias_drift.parameters",
+            crate::stats::median(&d.rate_m_s2_per_s),
+            times(d.test_chi2),
+            d.test_dof,
+            d.p_value,
+            list(moves),
+            list(over_printed),
+        )
+    })
+}
+
 /// The verdicts of a calibration (module docs); `held_static_chi2_dof` are the held-out
 /// recordings' static misfits.
 pub fn assess(cal: &Calibration, held_static_chi2_dof: &[f64]) -> Vec<Verdict> {
@@ -81,6 +105,10 @@ pub fn assess(cal: &Calibration, held_static_chi2_dof: &[f64]) -> Vec<Verdict> {
     let verdict = |kind, trustworthy, reason: String| Verdict { kind, trustworthy, reason };
     let mut out = Vec::new();
     let static_x = fit.static_chi2_dof;
+    let drift_reason = cal.static_drift.as_ref().and_then(|d| {
+        let printed = |j, p| fit.sigma(j, p);
+        drift_reason(d, &moves_in_printed_sigmas(d, &fit.params, &printed), &sigma_over_printed(d, &printed))
+    });
     let held_worst = held_static_chi2_dof.iter().copied().filter(|v| v.is_finite()).fold(f64::NAN, f64::max);
     for (kind, ps) in [("scale_factors", &[0][..]), ("biases", &[1][..]), ("tilts", &[2, 3][..])] {
         let missing: usize = ps.iter().map(|&p| unidentified(p)).sum();
@@ -96,6 +124,8 @@ pub fn assess(cal: &Calibration, held_static_chi2_dof: &[f64]) -> Vec<Verdict> {
                 ),
             )
         } else if let Some(reason) = cal.static_tension.as_ref().and_then(|t| pull_reason(t, static_x)) {
+            verdict(kind, false, reason)
+        } else if let Some(reason) = drift_reason.clone() {
             verdict(kind, false, reason)
         } else if !(static_x <= MISFIT_LIMIT) {
             verdict(

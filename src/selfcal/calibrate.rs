@@ -21,6 +21,7 @@ use super::model::{PER_ACCEL, sensors};
 use super::recording::Recording;
 use super::robust::robust_covariance_with_bread;
 use super::segment::{DetectorSettings, Interval, Segmentation, segment};
+use super::static_drift::{StaticDrift, static_drift_at, static_times};
 use super::tension::{StaticTension, tension_at};
 use super::timing::{
     ClockEstimate, ClockProblem, SigmaCheck, TIMING_UNKNOWNS_PER_SAMPLE, gyro_offsets, host_dt_s, sawtooth_periods,
@@ -103,6 +104,9 @@ pub struct Calibration {
     /// The static phase refitted alone against the joint fit (`selfcal::tension`), where a
     /// rotation phase was fitted with the static one.
     pub static_tension: Option<StaticTension>,
+    /// The static phase refitted with a bias drift in time (`selfcal::static_drift`), where the
+    /// static phase has enough poses for it.
+    pub static_drift: Option<StaticDrift>,
 }
 
 /// The static means and pooled per-sample scatter of every interval. An output at or beyond its
@@ -229,8 +233,12 @@ pub fn calibrate(
     let static_tension = dynamic.map(|_| {
         tension_at(&array.array, &stat, &fit.params, &fit.up, &|j, p| fit.sigma(j, p), settings.fit.gravity_m_s2)
     });
+    let (static_t_s, t_mid_s) = static_times(&rec.t_s, &seg.static_intervals);
+    let static_drift =
+        static_drift_at(&array.array, &stat, &fit.params, &fit.up, &static_t_s, t_mid_s, settings.fit.gravity_m_s2);
     Ok(Calibration {
         static_tension,
+        static_drift,
         segmentation: seg,
         fit,
         static_data: stat,

@@ -15,7 +15,8 @@
 //!   rotation phase's heavy tail from leading it; [`unseen`]: what it cannot see beyond the
 //!   gauge; [`geometry`]: what an array's geometry cannot see, on synthetic data;
 //! - [`misfit`]: the rotation phase's chi^2/dof, one metric for calibrate and diagnose;
-//! - [`tension`]: the static phase refitted alone, against the joint fit;
+//! - [`tension`]: the static phase refitted alone, against the joint fit; [`static_drift`]: the
+//!   static phase refitted with a bias drift in time, and its test;
 //! - [`calibrate`]: the workflow; [`output`]: its JSON; [`assessment`]: what to trust in it.
 
 pub mod assessment;
@@ -38,6 +39,7 @@ pub mod sampling;
 mod schur;
 pub mod segment;
 pub mod simulate;
+pub mod static_drift;
 pub mod tension;
 pub mod timing;
 pub mod track;

@@ -7,7 +7,12 @@
 //! chi2_dof, residual_rms_m_s2, tension}` (`tension: {chi2_dof_static_only, move_rms_sigma,
 //! largest: {accelerometer, name, move_sigma}, pull_chi2, pull_dof, pull_p_value}` with a
 //! rotation phase, else null:
-//! `selfcal::tension`), `dynamic: {samples, clipped, residual_rms_m_s2}`, `gyro_check:
+//! `selfcal::tension`; `bias_drift: {t_mid_s, chi2_dof, chi2_dof_without, test_chi2, test_dof,
+//! p_value, drifts, move_rms_sigma and sigma_over_printed: {scale_factor, bias, tilt_u, tilt_w}
+//! (the refit's move from the joint values in printed sigmas, RMS; its sigmas over the printed,
+//! median), rates:
+//! [{accelerometer, rate_m_s2_per_s, rate_sigma_m_s2_per_s}], parameters: [{accelerometer, name,
+//! value, sigma, unit}]}` with at least 6 poses, else null: `selfcal::static_drift`), `dynamic: {samples, clipped, residual_rms_m_s2}`, `gyro_check:
 //! {samples, rms_rad_s, relative}` (when reference gyroscopes are given), and further keys that
 //! say how the result was obtained. A parameter the recording cannot identify (a location without
 //! a rotation phase, or one with a share in a combination the Fisher information cannot see beyond
@@ -90,6 +95,7 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
                 "pull_dof": t.pull_dof,
                 "pull_p_value": num(t.pull_p_value),
             })),
+            "bias_drift": cal.static_drift.as_ref().map(|d| bias_drift_json(d, cal)),
         },
         "dynamic": {
             "samples": cal.dynamic_index.len(),
@@ -182,6 +188,39 @@ pub const SAMPLE_CLOCK_GAUGE: &str = "a change common to every package's clock (
 /// `sample_clocks`: per package (1-based, in the order the array file names them) its clock's
 /// rate offset `(f / f0 - 1) 1e6` in the recording's time base (positive: the package runs fast),
 /// drift and phase (the age of its sample at `phase_time_s`), with sigmas.
+/// `static.bias_drift` (`selfcal::static_drift`): the test, each accelerometer's drift rate, the
+/// static parameters refitted with it (as `parameters`), and their sigmas over the printed ones
+/// (median over the accelerometers, per parameter).
+fn bias_drift_json(d: &super::static_drift::StaticDrift, cal: &Calibration) -> Value {
+    let n = d.rate_m_s2_per_s.len();
+    let printed = |j, p| cal.fit.sigma(j, p);
+    let over_printed = super::static_drift::sigma_over_printed(d, &printed);
+    let moves = super::static_drift::moves_in_printed_sigmas(d, &cal.fit.params, &printed);
+    json!({
+        "t_mid_s": d.t_mid_s,
+        "chi2_dof": num(d.chi2_dof),
+        "chi2_dof_without": num(d.chi2_dof_without),
+        "test_chi2": num(d.test_chi2),
+        "test_dof": d.test_dof,
+        "p_value": num(d.p_value),
+        "drifts": d.drifts(),
+        "move_rms_sigma": (0..4).map(|p| (NAMES[p].to_string(), num(moves[p]))).collect::<serde_json::Map<_, _>>(),
+        "sigma_over_printed": (0..4).map(|p| (NAMES[p].to_string(), num(over_printed[p]))).collect::<serde_json::Map<_, _>>(),
+        "rates": (0..n).map(|j| json!({
+            "accelerometer": j + 1,
+            "rate_m_s2_per_s": num(d.rate_m_s2_per_s[j]),
+            "rate_sigma_m_s2_per_s": num(d.rate_sigma_m_s2_per_s[j]),
+        })).collect::<Vec<_>>(),
+        "parameters": (0..n).flat_map(|j| (0..4).map(move |p| (j, p))).map(|(j, p)| json!({
+            "accelerometer": j + 1,
+            "name": NAMES[p],
+            "value": num(if d.sigma[j][p].is_finite() { d.params.get(j, p) } else { f64::NAN }),
+            "sigma": num(d.sigma[j][p]),
+            "unit": UNITS[p],
+        })).collect::<Vec<_>>(),
+    })
+}
+
 fn sample_clocks_json(c: &super::timing::ClockEstimate, array: &RecordingArray) -> Value {
     let rows: Vec<Value> = c
         .clocks

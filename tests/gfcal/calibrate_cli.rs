@@ -152,6 +152,17 @@ fn a_recording_without_rotation_calibrates_what_static_poses_identify_and_names_
     assert!(sigma("dx").is_null(), "location sigma is null: not identifiable");
     // 0.04 m/s^2 a sample, about 280 samples a pose, 10 poses: a bias sigma of a few 1e-4.
     assert!(sigma("bias").as_f64().is_some_and(|s| s > 1e-4 && s < 3e-3), "bias sigma {}", sigma("bias"));
+    // The bias drift check needs only the static phase; this recording's biases do not drift.
+    let d = &v["static"]["bias_drift"];
+    assert_eq!(d["test_dof"], 24, "{d}");
+    assert_eq!(d["drifts"], false, "{d}");
+    assert!(d["p_value"].as_f64().is_some_and(|p| p > 1e-3), "{d}");
+    assert_eq!(d["rates"].as_array().map(Vec::len), Some(24));
+    assert_eq!(d["parameters"].as_array().map(Vec::len), Some(96));
+    for k in ["scale_factor", "bias", "tilt_u", "tilt_w"] {
+        assert!(d["move_rms_sigma"][k].is_f64() && d["sigma_over_printed"][k].is_f64(), "{k}: {d}");
+    }
+    assert!(out.contains("static phase refitted with a bias drift in time"), "{out}");
 }
 
 #[test]

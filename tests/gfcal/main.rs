@@ -1,6 +1,7 @@
 //! Integration tests of gfcal, one module per domain.
 
 mod anti_alias;
+mod bias_drift;
 mod calibrate_cli;
 mod calibration;
 mod cli;
