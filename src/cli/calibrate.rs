@@ -22,6 +22,7 @@ pub struct CalibrateArgs<'a> {
     pub report: Option<&'a Path>,
     pub use_gyro: bool,
     pub plain_least_squares: bool,
+    pub remove_bias_drift: bool,
     pub held_out: &'a [PathBuf],
     pub gravity_m_s2: f64,
     pub detector: DetectorSettings,
@@ -89,6 +90,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
         fit: FitSettings { gravity_m_s2: a.gravity_m_s2, ..FitSettings::default() },
         use_gyro: a.use_gyro,
         plain_least_squares: a.plain_least_squares,
+        remove_bias_drift: a.remove_bias_drift,
     };
     let started_utc = humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string();
     let started = std::time::Instant::now();
@@ -205,6 +207,21 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
                 ""
             }
         );
+    }
+    if let Some(d) = &cal.removed_bias_drift {
+        let _ = writeln!(
+            s,
+            "bias drift in time taken out before the calibration (--remove-bias-drift; fitted to the static phase alone): median {:.2e} m/s^2/s, test chi2 {:.1} on {} dof (p = {:.1e}); static chi2/dof {:.2} with it, {:.2} without",
+            gfcal::stats::median(&d.rate_m_s2_per_s),
+            d.test_chi2,
+            d.test_dof,
+            d.p_value,
+            d.chi2_dof,
+            d.chi2_dof_without
+        );
+    }
+    if let Some(note) = &cal.bias_drift_note {
+        let _ = writeln!(s, "{note}");
     }
     if let Some(d) = &cal.static_drift {
         let printed = |j, p| fit.sigma(j, p);

@@ -39,6 +39,12 @@ pub struct CalibrateSettings {
     /// Fit a clocked rotation phase by least squares alone, without Huber's weights on the
     /// heavy tail the clocks leave (`selfcal::huber`; for comparison: the default has them).
     pub plain_least_squares: bool,
+    /// Take a bias drift in time out of the recording before calibrating it: each
+    /// accelerometer's drift found by `selfcal::static_drift` on a fit of the static phase alone,
+    /// removed from every output, `s -= k d (t - t_mid)` ([`without_bias_drift`]). Needs the
+    /// static poses a calibration without a rotation phase needs; with fewer the recording is
+    /// calibrated as it is, and [`Calibration::bias_drift_note`] says why.
+    pub remove_bias_drift: bool,
 }
 
 /// Why a calibration cannot be done.
@@ -107,6 +113,11 @@ pub struct Calibration {
     /// The static phase refitted with a bias drift in time (`selfcal::static_drift`), where the
     /// static phase has enough poses for it.
     pub static_drift: Option<StaticDrift>,
+    /// The bias drift taken out of the recording before this calibration
+    /// ([`CalibrateSettings::remove_bias_drift`]): the check on the static phase alone.
+    pub removed_bias_drift: Option<StaticDrift>,
+    /// Why a drift asked to be removed was not.
+    pub bias_drift_note: Option<String>,
 }
 
 /// The static means and pooled per-sample scatter of every interval. An output at or beyond its
@@ -163,6 +174,21 @@ pub fn calibrate(
             "--use-gyro needs reference gyroscopes, and the array file {} lists none",
             array.path.display()
         )));
+    }
+    if settings.remove_bias_drift {
+        let inner = CalibrateSettings { remove_bias_drift: false, ..*settings };
+        return match static_phase_drift(rec, array, &inner)? {
+            Ok(drift) => {
+                let mut cal = calibrate(&without_bias_drift(rec, &drift), array, &inner)?;
+                cal.removed_bias_drift = Some(drift);
+                Ok(cal)
+            }
+            Err(why) => {
+                let mut cal = calibrate(rec, array, &inner)?;
+                cal.bias_drift_note = Some(why);
+                Ok(cal)
+            }
+        };
     }
     let seg = segment(rec, &settings.detector).map_err(|e| bad(e.to_string()))?;
     let stat = static_data(rec, &seg.static_intervals)
@@ -239,6 +265,8 @@ pub fn calibrate(
     Ok(Calibration {
         static_tension,
         static_drift,
+        removed_bias_drift: None,
+        bias_drift_note: None,
         segmentation: seg,
         fit,
         static_data: stat,
@@ -252,6 +280,50 @@ pub fn calibrate(
         clock_note,
         to_identify,
     })
+}
+
+/// The bias drift of a recording's static phase (`selfcal::static_drift`) at a fit of the static
+/// phase alone (no rotation phase: its pull and its own gaps kept out of the drift); the inner
+/// `Err` says why there is none (too few poses for a fit without a rotation phase, or for the
+/// drift's five parameters an accelerometer).
+fn static_phase_drift(
+    rec: &Recording,
+    array: &RecordingArray,
+    settings: &CalibrateSettings,
+) -> Result<Result<StaticDrift, String>, CalibrateError> {
+    let bad = |problem: String| CalibrateError::Recording { path: rec.path.clone(), problem };
+    let seg = segment(rec, &settings.detector).map_err(|e| bad(e.to_string()))?;
+    let stat = static_data(rec, &seg.static_intervals)
+        .map_err(|problem| bad(format!("{problem} (array file {})", array.path.display())))?;
+    let static_only = match fit(&array.array, &stat, None, &settings.fit) {
+        Ok(f) => f,
+        Err(e) => return Ok(Err(format!("the bias drift was not removed: its fit of the static phase alone failed ({e})"))),
+    };
+    let (static_t_s, t_mid_s) = static_times(&rec.t_s, &seg.static_intervals);
+    Ok(static_drift_at(
+        &array.array,
+        &stat,
+        &static_only.params,
+        &static_only.up,
+        &static_t_s,
+        t_mid_s,
+        settings.fit.gravity_m_s2,
+    )
+    .ok_or_else(|| "the bias drift was not removed: the static phase has too few poses to fit it".to_string()))
+}
+
+/// `rec` with the bias drift `drift` taken out of every output, `s -= k d (t - t_mid)` (`k` the
+/// drift refit's scale factor; an accelerometer without a drift is left as it is). Which outputs
+/// are clipped is the recording's, not recomputed.
+pub fn without_bias_drift(rec: &Recording, drift: &StaticDrift) -> Recording {
+    let mut out = rec.clone();
+    for (j, rate) in drift.rate_m_s2_per_s.iter().enumerate().filter(|(_, r)| r.is_finite()) {
+        let k = drift.params.scale_factor[j];
+        for (i, t) in rec.t_s.iter().enumerate() {
+            out.outputs[(i, j)] -= k * rate * (t - drift.t_mid_s);
+        }
+    }
+    out
 }
 
 /// The clocks of a recording's packages as their own gyroscopes measure them (the start of

@@ -12,7 +12,9 @@
 //! (the refit's move from the joint values in printed sigmas, RMS; its sigmas over the printed,
 //! median), rates:
 //! [{accelerometer, rate_m_s2_per_s, rate_sigma_m_s2_per_s}], parameters: [{accelerometer, name,
-//! value, sigma, unit}]}` with at least 6 poses, else null: `selfcal::static_drift`), `dynamic: {samples, clipped, residual_rms_m_s2}`, `gyro_check:
+//! value, sigma, unit}]}` with at least 6 poses, else null: `selfcal::static_drift`;
+//! `bias_drift_removed`: the same for the drift taken out before the calibration with
+//! `--remove-bias-drift`, else null, and `bias_drift_note`: why it was not), `dynamic: {samples, clipped, residual_rms_m_s2}`, `gyro_check:
 //! {samples, rms_rad_s, relative}` (when reference gyroscopes are given), and further keys that
 //! say how the result was obtained. A parameter the recording cannot identify (a location without
 //! a rotation phase, or one with a share in a combination the Fisher information cannot see beyond
@@ -96,6 +98,8 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
                 "pull_p_value": num(t.pull_p_value),
             })),
             "bias_drift": cal.static_drift.as_ref().map(|d| bias_drift_json(d, cal)),
+            "bias_drift_removed": cal.removed_bias_drift.as_ref().map(|d| bias_drift_json(d, cal)),
+            "bias_drift_note": cal.bias_drift_note,
         },
         "dynamic": {
             "samples": cal.dynamic_index.len(),
