@@ -41,7 +41,9 @@ pub struct CalibrateSettings {
     pub plain_least_squares: bool,
     /// Take a bias drift in time out of the recording before calibrating it: each
     /// accelerometer's drift found by `selfcal::static_drift` on a fit of the static phase alone,
-    /// removed from every output, `s -= k d (t - t_mid)` ([`without_bias_drift`]). Needs the
+    /// removed from every output, `s -= k d (t - t_mid)` ([`without_bias_drift`]), and the
+    /// variance its uncertainty adds in the static phase ([`StaticDrift::added_variance`]) added
+    /// to each scale factor's, bias's and tilt's (the covariance's diagonal). Needs the
     /// static poses a calibration without a rotation phase needs; with fewer the recording is
     /// calibrated as it is, and [`Calibration::bias_drift_note`] says why.
     pub remove_bias_drift: bool,
@@ -180,6 +182,13 @@ pub fn calibrate(
         return match static_phase_drift(rec, array, &inner)? {
             Ok(drift) => {
                 let mut cal = calibrate(&without_bias_drift(rec, &drift), array, &inner)?;
+                // The drift taken out is an estimate: the variance its uncertainty adds to each
+                // scale factor, bias and tilt in the static phase goes on their diagonal.
+                for j in 0..cal.fit.params.len() {
+                    for p in 0..4 {
+                        cal.fit.covariance[(PER_ACCEL * j + p, PER_ACCEL * j + p)] += drift.added_variance(j, p);
+                    }
+                }
                 cal.removed_bias_drift = Some(drift);
                 Ok(cal)
             }
@@ -297,7 +306,9 @@ fn static_phase_drift(
         .map_err(|problem| bad(format!("{problem} (array file {})", array.path.display())))?;
     let static_only = match fit(&array.array, &stat, None, &settings.fit) {
         Ok(f) => f,
-        Err(e) => return Ok(Err(format!("the bias drift was not removed: its fit of the static phase alone failed ({e})"))),
+        Err(e) => {
+            return Ok(Err(format!("the bias drift was not removed: its fit of the static phase alone failed ({e})")));
+        }
     };
     let (static_t_s, t_mid_s) = static_times(&rec.t_s, &seg.static_intervals);
     Ok(static_drift_at(

@@ -27,7 +27,7 @@
 //! The joint fit does not model the drift; where the test rejects, `selfcal::assessment` says the
 //! printed scale factors, biases and tilts are not to be trusted and points here.
 
-use nalgebra::{SMatrix, SVector, Vector3};
+use nalgebra::{Matrix4, SMatrix, SVector, Vector3};
 
 use super::data::StaticData;
 use super::model::{SensorSet, sensors};
@@ -53,6 +53,10 @@ pub struct StaticDrift {
     pub params: SensorSet,
     /// Sigmas of `(k, b, tilt_u, tilt_w)` with the drift fitted (NaN where not refitted).
     pub sigma: Vec<[f64; 4]>,
+    /// The same parameters' sigmas from the same information with the drift held (its column
+    /// left out), on the same scale: `sigma^2 - sigma_drift_held^2` is the variance the drift's
+    /// own uncertainty adds ([`StaticDrift::added_variance`]).
+    pub sigma_drift_held: Vec<[f64; 4]>,
     /// The static chi^2/dof with the drift, on `N P - (5 N + 2 P - 3)` degrees of freedom.
     pub chi2_dof: f64,
     /// The static chi^2/dof of the same refit without the drift (`selfcal::tension`'s).
@@ -69,6 +73,15 @@ impl StaticDrift {
     /// Whether the biases drift beyond the static phase's scatter.
     pub fn drifts(&self) -> bool {
         self.p_value < DRIFT_P_LEVEL
+    }
+
+    /// The variance that the drift's own uncertainty adds to parameter `p` (0..4: `k, b,
+    /// tilt_u, tilt_w`) of accelerometer `j` in the static phase, `sigma^2 - sigma_drift_held^2`
+    /// (0 where not finite): what a calibration that takes this drift out as known leaves out of
+    /// its sigmas.
+    pub fn added_variance(&self, j: usize, p: usize) -> f64 {
+        let v = self.sigma[j][p].powi(2) - self.sigma_drift_held[j][p].powi(2);
+        if v.is_finite() { v.max(0.0) } else { 0.0 }
     }
 }
 
@@ -200,6 +213,7 @@ pub fn static_drift_at(
     let test_chi2 = (chi2_without - chi2).max(0.0) / scale;
     let p_value = crate::stats::chi2_sf(test_chi2, refitted as f64).unwrap_or(f64::NAN);
     let mut sigma = vec![[f64::NAN; 4]; n];
+    let mut sigma_drift_held = vec![[f64::NAN; 4]; n];
     let mut rate_sigma = vec![f64::NAN; n];
     for j in (0..n).filter(|&j| solved[j]) {
         if let Some(cov) = inverse_scaled(&information[j]) {
@@ -208,12 +222,19 @@ pub fn static_drift_at(
             }
             rate_sigma[j] = (cov[(4, 4)] * scale).sqrt();
         }
+        let held: Matrix4<f64> = information[j].fixed_view::<4, 4>(0, 0).into_owned();
+        if let Some(cov) = held.try_inverse() {
+            for p in 0..4 {
+                sigma_drift_held[j][p] = (cov[(p, p)] * scale).sqrt();
+            }
+        }
     }
     Some(StaticDrift {
         rate_m_s2_per_s: (0..n).map(|j| if solved[j] { rate[j] } else { f64::NAN }).collect(),
         rate_sigma_m_s2_per_s: rate_sigma,
         params,
         sigma,
+        sigma_drift_held,
         chi2_dof,
         chi2_dof_without: chi2_without / super::tension::static_dof(n, poses),
         test_chi2,
