@@ -202,10 +202,11 @@ pub enum Command {
         /// heavy tail the sample clocks leave (for comparison; see docs/sample-clocks.md).
         #[arg(long)]
         plain_least_squares: bool,
-        /// Take a bias drift in time out of the recording before calibrating it (each
-        /// accelerometer's, fitted to the static phase alone; see docs/real-hardware.md).
+        /// Calibrate the recording as it is, without first taking each accelerometer's bias
+        /// drift in time (fitted to the static phase alone) out of it; see
+        /// docs/real-hardware.md, "Bias drift in time".
         #[arg(long)]
-        remove_bias_drift: bool,
+        keep_bias_drift: bool,
         /// Predict these recordings of the same array with this calibration (only their pose
         /// directions and motion refitted) and report the residuals.
         #[arg(long, num_args = 1..)]

@@ -211,7 +211,7 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
     if let Some(d) = &cal.removed_bias_drift {
         let _ = writeln!(
             s,
-            "bias drift in time taken out before the calibration (--remove-bias-drift; fitted to the static phase alone): median {:.2e} m/s^2/s, test chi2 {:.1} on {} dof (p = {:.1e}); static chi2/dof {:.2} with it, {:.2} without",
+            "bias drift in time taken out before the calibration (fitted to the static phase alone; --keep-bias-drift leaves it in): median {:.2e} m/s^2/s, test chi2 {:.1} on {} dof (p = {:.1e}); static chi2/dof {:.2} with it, {:.2} without",
             gfcal::stats::median(&d.rate_m_s2_per_s),
             d.test_chi2,
             d.test_dof,

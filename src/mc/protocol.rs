@@ -13,6 +13,8 @@
 //! accel_rms_m_s2 = 30.0       # RMS acceleration of the origin in the rotation phase
 //! sample_rate_hz = 62.5
 //! use_gyro = false            # true: the rate from the reference gyroscopes of the array file
+//! remove_bias_drift = false   # true: calibrate as `gfcal calibrate` does by default, each
+//!                             # accelerometer's bias drift in time taken out first
 //! gyro_noise_sigma_rad_s = 0.01
 //! ```
 //!
@@ -81,6 +83,8 @@ pub struct ProtocolSection {
     pub sample_rate_hz: f64,
     #[serde(default)]
     pub use_gyro: bool,
+    #[serde(default)]
+    pub remove_bias_drift: bool,
     pub gyro_noise_sigma_rad_s: Option<f64>,
     pub motion_band_hz: Option<[f64; 2]>,
     pub accel_band_hz: Option<[f64; 2]>,
@@ -214,6 +218,8 @@ pub struct ProtocolCell {
     pub protocol: Protocol,
     pub array: RecordingArray,
     pub use_gyro: bool,
+    /// Calibrate with `remove_bias_drift` (`selfcal::calibrate::CalibrateSettings`).
+    pub remove_bias_drift: bool,
 }
 
 impl ProtocolSection {
@@ -361,6 +367,7 @@ impl ProtocolSection {
             },
             array,
             use_gyro: self.use_gyro,
+            remove_bias_drift: self.remove_bias_drift,
         })
     }
 }
@@ -485,7 +492,11 @@ pub fn calibrate_one<R: Rng + ?Sized>(
         Ok(s) => s,
         Err(e) => return (Err(format!("simulation: {e}")), vec![f64::NAN; p]),
     };
-    let settings = CalibrateSettings { use_gyro: cell.use_gyro, ..CalibrateSettings::default() };
+    let settings = CalibrateSettings {
+        use_gyro: cell.use_gyro,
+        remove_bias_drift: cell.remove_bias_drift,
+        ..CalibrateSettings::default()
+    };
     let cal = match calibrate(&sim.recording, &cell.array, &settings) {
         Ok(c) => c,
         Err(e) => return (Err(format!("calibration: {e}")), vec![f64::NAN; p]),

@@ -13,8 +13,8 @@
 //! median), rates:
 //! [{accelerometer, rate_m_s2_per_s, rate_sigma_m_s2_per_s}], parameters: [{accelerometer, name,
 //! value, sigma, unit}]}` with at least 6 poses, else null: `selfcal::static_drift`;
-//! `bias_drift_removed`: the same for the drift taken out before the calibration with
-//! `--remove-bias-drift`, else null, and `bias_drift_note`: why it was not), `dynamic: {samples, clipped, residual_rms_m_s2}`, `gyro_check:
+//! `bias_drift_removed`: the same for the drift taken out before the calibration (`gfcal
+//! calibrate`'s default; null with `--keep-bias-drift`), and `bias_drift_note`: why it was not), `dynamic: {samples, clipped, residual_rms_m_s2}`, `gyro_check:
 //! {samples, rms_rad_s, relative}` (when reference gyroscopes are given), and further keys that
 //! say how the result was obtained. A parameter the recording cannot identify (a location without
 //! a rotation phase, or one with a share in a combination the Fisher information cannot see beyond
