@@ -28,6 +28,19 @@ pub struct CalibrateArgs<'a> {
     pub detector: DetectorSettings,
 }
 
+/// A bias drift check's test in words (`selfcal::static_drift`).
+fn drift_test(d: &gfcal::selfcal::static_drift::StaticDrift) -> String {
+    format!(
+        "median {:.2e} m/s^2/s, test chi2 {:.1} on {} dof (p = {:.1e}); static chi2/dof {:.2} with it, {:.2} without",
+        gfcal::stats::median(&d.rate_m_s2_per_s),
+        d.test_chi2,
+        d.test_dof,
+        d.p_value,
+        d.chi2_dof,
+        d.chi2_dof_without
+    )
+}
+
 fn check_settings(a: &CalibrateArgs) -> Result<(), InputError> {
     let d = &a.detector;
     let checks = [
@@ -211,13 +224,8 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
     if let Some(d) = &cal.removed_bias_drift {
         let _ = writeln!(
             s,
-            "bias drift in time taken out before the calibration (fitted to the static phase alone; --keep-bias-drift leaves it in): median {:.2e} m/s^2/s, test chi2 {:.1} on {} dof (p = {:.1e}); static chi2/dof {:.2} with it, {:.2} without",
-            gfcal::stats::median(&d.rate_m_s2_per_s),
-            d.test_chi2,
-            d.test_dof,
-            d.p_value,
-            d.chi2_dof,
-            d.chi2_dof_without
+            "bias drift in time taken out before the calibration (fitted to the static phase alone; --keep-bias-drift leaves it in): {}",
+            drift_test(d)
         );
     }
     if let Some(note) = &cal.bias_drift_note {
@@ -229,13 +237,8 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
         let moves = gfcal::selfcal::static_drift::moves_in_printed_sigmas(d, &fit.params, &printed);
         let _ = writeln!(
             s,
-            "static phase refitted with a bias drift in time (poses held): drift median {:.2e} m/s^2/s; chi2/dof {:.2} (without {:.2}); the drift's test chi2 {:.1} on {} dof (p = {:.1e}){}; with it scale factor, bias, tilt_u and tilt_w move by {:.1}, {:.1}, {:.1}, {:.1} printed sigmas RMS, their sigmas {:.1}, {:.1}, {:.1}, {:.1} times the printed (median)",
-            gfcal::stats::median(&d.rate_m_s2_per_s),
-            d.chi2_dof,
-            d.chi2_dof_without,
-            d.test_chi2,
-            d.test_dof,
-            d.p_value,
+            "static phase refitted with a bias drift in time (poses held): {}{}; with it scale factor, bias, tilt_u and tilt_w move by {:.1}, {:.1}, {:.1}, {:.1} printed sigmas RMS, their sigmas {:.1}, {:.1}, {:.1}, {:.1} times the printed (median)",
+            drift_test(d),
             if d.drifts() { ": the biases drift in time, which the joint fit leaves out" } else { "" },
             moves[0],
             moves[1],

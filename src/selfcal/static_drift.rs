@@ -126,11 +126,6 @@ pub fn static_times(t_s: &[f64], intervals: &[super::segment::Interval]) -> (Vec
     (times, middle)
 }
 
-/// The static phase's degrees of freedom with the drift: `N P - (5 N + 2 P - 3)`, at least 1.
-fn dof_with_drift(n: usize, poses: usize) -> f64 {
-    ((n * poses) as f64 - (5 * n + 2 * poses) as f64 + 3.0).max(1.0)
-}
-
 /// The check at the joint fit's parameters `joint` and poses `up`; `static_t_s` and `t_mid_s` from
 /// [`static_times`]. `None` with fewer than 6 poses (five parameters an accelerometer and one
 /// degree of freedom).
@@ -206,7 +201,7 @@ pub fn static_drift_at(
             chi2 += r * r * weight(p, j);
         }
     }
-    let chi2_dof = chi2 / dof_with_drift(n, poses);
+    let chi2_dof = chi2 / super::tension::static_dof_with(n, poses, 5);
     let (without, _) = refit_static(array, stat, joint, up, gravity_m_s2);
     let chi2_without = static_chi2(array, stat, &without, up, gravity_m_s2);
     let scale = chi2_dof.max(1.0);

@@ -115,7 +115,12 @@ pub fn refit_static(
 /// The static phase's degrees of freedom: `N P` means less `4 N + 2 P - 3` parameters (as the
 /// joint fit counts them), at least 1.
 pub(super) fn static_dof(n: usize, poses: usize) -> f64 {
-    ((n * poses) as f64 - (4 * n + 2 * poses) as f64 + 3.0).max(1.0)
+    static_dof_with(n, poses, 4)
+}
+
+/// [`static_dof`] with `per_accelerometer` parameters an accelerometer: `N P - (k N + 2 P - 3)`.
+pub(super) fn static_dof_with(n: usize, poses: usize, per_accelerometer: usize) -> f64 {
+    ((n * poses) as f64 - (per_accelerometer * n + 2 * poses) as f64 + 3.0).max(1.0)
 }
 
 /// The static chi^2/dof with [`refit_static`]'s parameters: the static phase's scatter about its
