@@ -66,7 +66,7 @@ use crate::selfcal::drift::BiasDriftSpread;
 use crate::selfcal::model::{PER_ACCEL, SensorSet};
 use crate::selfcal::sampling::{ClockSpread, Spread};
 use crate::selfcal::simulate::{AntiAlias, FINE_STEP_S, MOTION_BAND_HZ, VIBRATION_BAND_HZ, Vibration};
-use crate::selfcal::simulate::{Protocol, bound_at_truth, project_to_gauge, simulate};
+use crate::selfcal::simulate::{Protocol, bound_at_truth, drift_removal_variance_at_truth, project_to_gauge, simulate};
 use crate::selfcal::vibration::LowPass;
 use crate::units::M_S2_PER_UG;
 
@@ -479,7 +479,9 @@ pub fn truth_in_gauge(cell: &ProtocolCell, x: &DVector<f64>) -> DVector<f64> {
 }
 
 /// Simulates and calibrates one recording; the estimate (tilt form) and the Cramer-Rao sigma of
-/// every parameter at the truth (NaN where the calibration failed).
+/// every parameter at the truth (NaN where the calibration failed), with `remove_bias_drift` the
+/// removed drift's variance at the truth added to the scale factors', biases' and tilts'
+/// (`selfcal::simulate::drift_removal_variance_at_truth`), as the calibration adds it to theirs.
 pub fn calibrate_one<R: Rng + ?Sized>(
     cell: &ProtocolCell,
     layout: &Layout,
@@ -503,8 +505,18 @@ pub fn calibrate_one<R: Rng + ?Sized>(
     };
     let sigma = &cell.protocol.noise_sigma_m_s2;
     let g = cell.protocol.gravity_m_s2;
+    // A calibration that takes the drift out carries the removed drift's variance in its scale
+    // factors, biases and tilts: its bound is the joint model's plus that variance at the truth.
+    let removal = cell
+        .remove_bias_drift
+        .then(|| drift_removal_variance_at_truth(&cell.array, &sim, &cal, &truth, sigma, g))
+        .flatten();
+    let added = |i: usize| match &removal {
+        Some(v) if i % PER_ACCEL < 4 => v[i / PER_ACCEL][i % PER_ACCEL],
+        _ => 0.0,
+    };
     let crb: Vec<f64> = match bound_at_truth(&cell.array, &sim, &cal, &truth, sigma, g, cell.use_gyro) {
-        Ok((cov, _)) => (0..p).map(|i| cov[(i, i)].max(0.0).sqrt()).collect(),
+        Ok((cov, _)) => (0..p).map(|i| (cov[(i, i)] + added(i)).max(0.0).sqrt()).collect(),
         Err(_) => vec![f64::NAN; p],
     };
     let fit = &cal.fit;

@@ -85,7 +85,7 @@ fn drift_reason(d: &StaticDrift, moves: &[f64; 4], over_printed: &[f64; 4]) -> O
     d.drifts().then(|| {
         let list = |v: &[f64; 4]| v.iter().map(|x| times(*x)).collect::<Vec<_>>().join(", ");
         format!(
-            "not trustworthy: the biases drift in time (median {:.2e} m/s^2/s; it lowers the static chi^2 by {} on {} dof, p = {:.1e}), which the joint fit leaves out; the static phase refitted with the drift moves scale factor, bias, tilt_u and tilt_w by {} printed sigmas RMS, with sigmas {} times the printed (median): its values are in the JSON's static.bias_drift.parameters",
+            "not trustworthy: the biases drift in time (median {:.2e} m/s^2/s; it lowers the static chi^2 by {} on {} dof, p = {:.1e}), which this calibration leaves in; refitted with the drift, the static phase moves scale factor, bias, tilt_u and tilt_w by {} printed sigmas RMS, with sigmas {} times the printed (median); `gfcal calibrate` takes the drift out unless --keep-bias-drift",
             crate::stats::median(&d.rate_m_s2_per_s),
             times(d.test_chi2),
             d.test_dof,

@@ -9,8 +9,8 @@
 //! rotation phase, else null:
 //! `selfcal::tension`; `bias_drift: {t_mid_s, chi2_dof, chi2_dof_without, test_chi2, test_dof,
 //! p_value, drifts, move_rms_sigma and sigma_over_printed: {scale_factor, bias, tilt_u, tilt_w}
-//! (the refit's move from the joint values in printed sigmas, RMS; its sigmas over the printed,
-//! median), rates:
+//! (the refit's values less this calibration's in its printed sigmas, RMS; its sigmas over the
+//! printed, median), rates:
 //! [{accelerometer, rate_m_s2_per_s, rate_sigma_m_s2_per_s}], parameters: [{accelerometer, name,
 //! value, sigma, unit}]}` with at least 6 poses, else null: `selfcal::static_drift`;
 //! `bias_drift_removed`: the same for the drift taken out before the calibration (`gfcal

@@ -23,6 +23,7 @@ use rand::{Rng, RngExt};
 use rand_distr::StandardNormal;
 
 use super::clock::SampleClock;
+use super::data::StaticData;
 use super::drift::{BiasDrift, BiasDriftSpread};
 use super::model::{SampleMotion, SensorSet};
 use super::recording::{Recording, RecordingError};
@@ -1013,6 +1014,34 @@ fn simulate_fine<R: Rng + ?Sized>(
         })
         .collect();
     Ok(Simulated { recording, up, motion, jerk_m_s3: jerks, clocks })
+}
+
+/// The variance that a bias drift taken out before the calibration (`CalibrateSettings::
+/// remove_bias_drift`) adds to each accelerometer's `(k, b, tilt_u, tilt_w)` at the truth of a
+/// simulated recording: [`super::static_drift::StaticDrift::added_variance`] of the drift check on
+/// the truth's noise-free static means at the true poses of the calibration's static intervals,
+/// for white noise of `noise_sigma_m_s2` (the refit lands on the truth, so its information is the
+/// bound's). `None` where the check cannot be made (fewer than 6 poses).
+pub fn drift_removal_variance_at_truth(
+    array: &RecordingArray,
+    sim: &Simulated,
+    cal: &super::calibrate::Calibration,
+    truth: &SensorSet,
+    noise_sigma_m_s2: &[f64],
+    gravity_m_s2: f64,
+) -> Option<Vec<[f64; 4]>> {
+    let seg = &cal.segmentation;
+    let up: Vec<Vector3<f64>> = seg.static_intervals.iter().map(|iv| sim.up[(iv.start + iv.end) / 2]).collect();
+    let sens = super::model::sensors(&array.array, truth);
+    let means = DMatrix::from_fn(up.len(), sens.len(), |p, j| sens[j].output(&(up[p] * gravity_m_s2)));
+    let stat = StaticData {
+        means,
+        counts: seg.static_intervals.iter().map(|iv| iv.len()).collect(),
+        sigma: noise_sigma_m_s2.to_vec(),
+    };
+    let (static_t_s, t_mid_s) = super::static_drift::static_times(&sim.recording.t_s, &seg.static_intervals);
+    let d = super::static_drift::static_drift_at(&array.array, &stat, truth, &up, &static_t_s, t_mid_s, gravity_m_s2)?;
+    Some((0..sens.len()).map(|j| [0, 1, 2, 3].map(|p| d.added_variance(j, p))).collect())
 }
 
 /// The Cramer-Rao bound in the gauge at the truth of a simulated recording, on the samples the
