@@ -507,8 +507,10 @@ pub fn calibrate_one<R: Rng + ?Sized>(
     let g = cell.protocol.gravity_m_s2;
     // A calibration that takes the drift out carries the removed drift's variance in its scale
     // factors, biases and tilts: its bound is the joint model's plus that variance at the truth.
-    let removal = cell
-        .remove_bias_drift
+    // (Only where it took one out: too few poses for a fit without the rotation phase leave it in.)
+    let removal = cal
+        .removed_bias_drift
+        .is_some()
         .then(|| drift_removal_variance_at_truth(&cell.array, &sim, &cal, &truth, sigma, g))
         .flatten();
     let added = |i: usize| match &removal {
