@@ -1016,6 +1016,11 @@ fn simulate_fine<R: Rng + ?Sized>(
     Ok(Simulated { recording, up, motion, jerk_m_s3: jerks, clocks })
 }
 
+/// The true up direction of each static interval of `seg` (at its middle sample).
+fn true_static_up(sim: &Simulated, seg: &super::segment::Segmentation) -> Vec<Vector3<f64>> {
+    seg.static_intervals.iter().map(|iv| sim.up[(iv.start + iv.end) / 2]).collect()
+}
+
 /// The variance that a bias drift taken out before the calibration (`CalibrateSettings::
 /// remove_bias_drift`) adds to each accelerometer's `(k, b, tilt_u, tilt_w)` at the truth of a
 /// simulated recording: [`super::static_drift::StaticDrift::added_variance`] of the drift check on
@@ -1031,7 +1036,7 @@ pub fn drift_removal_variance_at_truth(
     gravity_m_s2: f64,
 ) -> Option<Vec<[f64; 4]>> {
     let seg = &cal.segmentation;
-    let up: Vec<Vector3<f64>> = seg.static_intervals.iter().map(|iv| sim.up[(iv.start + iv.end) / 2]).collect();
+    let up = true_static_up(sim, seg);
     let sens = super::model::sensors(&array.array, truth);
     let means = DMatrix::from_fn(up.len(), sens.len(), |p, j| sens[j].output(&(up[p] * gravity_m_s2)));
     let stat = StaticData {
@@ -1059,7 +1064,7 @@ pub fn bound_at_truth(
 ) -> Result<(nalgebra::DMatrix<f64>, usize), super::fit::FitError> {
     let seg = &cal.segmentation;
     let counts: Vec<usize> = seg.static_intervals.iter().map(|iv| iv.len()).collect();
-    let up: Vec<_> = seg.static_intervals.iter().map(|iv| sim.up[(iv.start + iv.end) / 2]).collect();
+    let up = true_static_up(sim, seg);
     let prepared = super::calibrate::prepare_dynamic(&sim.recording, seg, use_gyro, Some(Vector3::zeros()));
     let mut dynamic = prepared.data;
     if let (Some(d), true) = (dynamic.as_mut(), use_gyro) {
