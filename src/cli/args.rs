@@ -131,6 +131,11 @@ pub enum Command {
         /// `calibrate --use-gyro`), and try the gyroscopes' own scale factor and misalignment.
         #[arg(long)]
         use_gyro: bool,
+        /// Recordings only: take each recording's bias drift in time out first, as `gfcal
+        /// calibrate` does by default (fitted to its own static phase alone), and diagnose what
+        /// is left; see docs/real-hardware.md, "Bias drift in time".
+        #[arg(long)]
+        remove_bias_drift: bool,
     },
     /// Add a known effect to a real recording (to check that a diagnosis finds it): the effect's
     /// generator works on the recorded output column; values in output units (see docs/model-discrepancy.md).

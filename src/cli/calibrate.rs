@@ -29,7 +29,7 @@ pub struct CalibrateArgs<'a> {
 }
 
 /// A bias drift check's test in words (`selfcal::static_drift`).
-fn drift_test(d: &gfcal::selfcal::static_drift::StaticDrift) -> String {
+pub(crate) fn drift_test(d: &gfcal::selfcal::static_drift::StaticDrift) -> String {
     format!(
         "median {:.2e} m/s^2/s, test chi2 {:.1} on {} dof (p = {:.1e}); static chi2/dof {:.2} with it, {:.2} without",
         gfcal::stats::median(&d.rate_m_s2_per_s),

@@ -215,6 +215,7 @@ pub struct RecordingOptions<'a> {
     pub report: Option<&'a Path>,
     pub alpha: f64,
     pub use_gyro: bool,
+    pub remove_bias_drift: bool,
 }
 
 pub fn diagnose_recordings(
@@ -223,7 +224,7 @@ pub fn diagnose_recordings(
     held_out: &[std::path::PathBuf],
     options: RecordingOptions,
 ) -> anyhow::Result<()> {
-    let RecordingOptions { json, report, alpha, use_gyro } = options;
+    let RecordingOptions { json, report, alpha, use_gyro, remove_bias_drift } = options;
     use gfcal::discrepancy::Explanation;
     use gfcal::discrepancy::recorded::{Gap, RecordedError, diagnose_recordings};
     use gfcal::selfcal::calibrate::CalibrateSettings;
@@ -234,7 +235,7 @@ pub fn diagnose_recordings(
     let path = table.path.as_path();
     let array = gfcal::config::array::load_recording_array(array_path).map_err(InputError::Config)?;
     let rec = Recording::from_table(table, &array).map_err(|e| InputError::Other(e.to_string()))?;
-    let settings = CalibrateSettings { use_gyro, ..CalibrateSettings::default() };
+    let settings = CalibrateSettings { use_gyro, remove_bias_drift, ..CalibrateSettings::default() };
     let mut others = Vec::new();
     for other in held_out {
         let o = Recording::read(other, &array)
@@ -263,6 +264,15 @@ pub fn diagnose_recordings(
         d.calibration.static_data.means.nrows(),
         d.calibration.dynamic_index.len()
     );
+    if let Some(drift) = &d.calibration.removed_bias_drift {
+        println!(
+            "  each recording's bias drift in time taken out first (fitted to its own static phase alone); the fitting recording's: {}",
+            super::calibrate::drift_test(drift)
+        );
+    }
+    if let Some(why) = &d.calibration.bias_drift_note {
+        println!("  {why}");
+    }
     println!("  fitting recording, baseline: {}", show(&d.fitting));
     for (name, g) in &d.fitting_after_each {
         println!("    + {name:<35} {}", show(g));

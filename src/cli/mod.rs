@@ -70,7 +70,17 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             check_outputs(&[Output::File("--out", &out)])?;
             discrepancy::simulate_log(&config, &out)
         }
-        Command::Diagnose { log, array, held_out, json, report, alpha, reference_temp_c, use_gyro } => {
+        Command::Diagnose {
+            log,
+            array,
+            held_out,
+            json,
+            report,
+            alpha,
+            reference_temp_c,
+            use_gyro,
+            remove_bias_drift,
+        } => {
             let mut inputs: Vec<(&str, &Path)> = vec![("log or recording", &log)];
             inputs.extend(array.as_deref().map(|a| ("array file", a)));
             inputs.extend(held_out.iter().map(|h| ("held-out recording", h.as_path())));
@@ -83,8 +93,20 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     &table,
                     array_path,
                     &held_out,
-                    discrepancy::RecordingOptions { json: json.as_deref(), report: report.as_deref(), alpha, use_gyro },
+                    discrepancy::RecordingOptions {
+                        json: json.as_deref(),
+                        report: report.as_deref(),
+                        alpha,
+                        use_gyro,
+                        remove_bias_drift,
+                    },
                 )
+            } else if remove_bias_drift {
+                Err(InputError::Other(format!(
+                    "{}: --remove-bias-drift takes real recordings (tables without the log's `up_x` column) with --array",
+                    log.display()
+                ))
+                .into())
             } else if use_gyro {
                 Err(InputError::Other(format!(
                     "{}: --use-gyro takes real recordings (tables without the log's `up_x` column) with --array",

@@ -179,25 +179,10 @@ pub fn calibrate(
     }
     if settings.remove_bias_drift {
         let inner = CalibrateSettings { remove_bias_drift: false, ..*settings };
-        return match static_phase_drift(rec, array, &inner)? {
-            Ok(drift) => {
-                let mut cal = calibrate(&without_bias_drift(rec, &drift), array, &inner)?;
-                // The drift taken out is an estimate: the variance its uncertainty adds to each
-                // scale factor, bias and tilt in the static phase goes on their diagonal.
-                for j in 0..cal.fit.params.len() {
-                    for p in 0..4 {
-                        cal.fit.covariance[(PER_ACCEL * j + p, PER_ACCEL * j + p)] += drift.added_variance(j, p);
-                    }
-                }
-                cal.removed_bias_drift = Some(drift);
-                Ok(cal)
-            }
-            Err(why) => {
-                let mut cal = calibrate(rec, array, &inner)?;
-                cal.bias_drift_note = Some(why);
-                Ok(cal)
-            }
-        };
+        let (corrected, drift) = bias_drift_taken_out(rec, array, &inner)?;
+        let mut cal = calibrate(&corrected, array, &inner)?;
+        with_removed_drift(&mut cal, drift);
+        return Ok(cal);
     }
     let seg = segment(rec, &settings.detector).map_err(|e| bad(e.to_string()))?;
     let stat = static_data(rec, &seg.static_intervals)
@@ -291,11 +276,44 @@ pub fn calibrate(
     })
 }
 
+/// `rec` with its bias drift taken out as [`calibrate`] takes it out under
+/// `CalibrateSettings::remove_bias_drift` (fitted to the static phase alone,
+/// [`static_phase_drift`], then [`without_bias_drift`]), and that drift; where there is none to
+/// take out, `rec` as it is and why not.
+pub fn bias_drift_taken_out(
+    rec: &Recording,
+    array: &RecordingArray,
+    settings: &CalibrateSettings,
+) -> Result<(Recording, Result<StaticDrift, String>), CalibrateError> {
+    Ok(match static_phase_drift(rec, array, settings)? {
+        Ok(drift) => (without_bias_drift(rec, &drift), Ok(drift)),
+        Err(why) => (rec.clone(), Err(why)),
+    })
+}
+
+/// Records on `cal` (a calibration of the recording with `drift` taken out, or of the recording
+/// as it is where the drift is `Err(why)`) what was taken out: the drift taken out is an
+/// estimate, so the variance its uncertainty adds to each scale factor, bias and tilt in the
+/// static phase goes on their diagonal.
+pub fn with_removed_drift(cal: &mut Calibration, drift: Result<StaticDrift, String>) {
+    match drift {
+        Ok(drift) => {
+            for j in 0..cal.fit.params.len() {
+                for p in 0..4 {
+                    cal.fit.covariance[(PER_ACCEL * j + p, PER_ACCEL * j + p)] += drift.added_variance(j, p);
+                }
+            }
+            cal.removed_bias_drift = Some(drift);
+        }
+        Err(why) => cal.bias_drift_note = Some(why),
+    }
+}
+
 /// The bias drift of a recording's static phase (`selfcal::static_drift`) at a fit of the static
 /// phase alone (no rotation phase: its pull and its own gaps kept out of the drift); the inner
 /// `Err` says why there is none (too few poses for a fit without a rotation phase, or for the
 /// drift's five parameters an accelerometer).
-fn static_phase_drift(
+pub fn static_phase_drift(
     rec: &Recording,
     array: &RecordingArray,
     settings: &CalibrateSettings,

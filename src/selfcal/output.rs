@@ -189,13 +189,11 @@ pub const ROBUST_ROTATION_PHASE: &str = "Huber's M-estimator after the least-squ
 /// The gauge of the clock model, as the JSON states it.
 pub const SAMPLE_CLOCK_GAUGE: &str = "a change common to every package's clock (phase, rate, drift) moves every sample's age alike and the per-sample motion absorbs it: the accelerometers' linearised model sees the clocks relative to their mean only (3 null directions), so the common part is taken from the gyroscopes' sawtooth (a rising sawtooth with a 1 ms wrap fixes it) and only the relative part is fitted to the accelerometers; without gyroscopes, the mirror age -> period - age (every rate offset's sign flipped) fits as well, so the gyroscopes' sawtooth picks the branch";
 
-/// `sample_clocks`: per package (1-based, in the order the array file names them) its clock's
-/// rate offset `(f / f0 - 1) 1e6` in the recording's time base (positive: the package runs fast),
-/// drift and phase (the age of its sample at `phase_time_s`), with sigmas.
 /// `static.bias_drift` (`selfcal::static_drift`): the test, each accelerometer's drift rate, the
-/// static parameters refitted with it (as `parameters`), and their sigmas over the printed ones
-/// (median over the accelerometers, per parameter).
-fn bias_drift_json(d: &super::static_drift::StaticDrift, cal: &Calibration) -> Value {
+/// static parameters refitted with it (as `parameters`), and their sigmas over the printed ones of
+/// `cal` (median over the accelerometers, per parameter). `gfcal diagnose --remove-bias-drift`
+/// writes the drift it took out so too.
+pub fn bias_drift_json(d: &super::static_drift::StaticDrift, cal: &Calibration) -> Value {
     let n = d.rate_m_s2_per_s.len();
     let printed = |j, p| cal.fit.sigma(j, p);
     let over_printed = super::static_drift::sigma_over_printed(d, &printed);
@@ -225,6 +223,9 @@ fn bias_drift_json(d: &super::static_drift::StaticDrift, cal: &Calibration) -> V
     })
 }
 
+/// `sample_clocks`: per package (1-based, in the order the array file names them) its clock's
+/// rate offset `(f / f0 - 1) 1e6` in the recording's time base (positive: the package runs fast),
+/// drift and phase (the age of its sample at `phase_time_s`), with sigmas.
 fn sample_clocks_json(c: &super::timing::ClockEstimate, array: &RecordingArray) -> Value {
     let rows: Vec<Value> = c
         .clocks

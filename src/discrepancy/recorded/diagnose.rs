@@ -44,7 +44,8 @@ use super::sensing::sensing_points;
 use super::trial::{HeldOutNormal, try_effects};
 use crate::array::wiring::RecordingArray;
 use crate::selfcal::calibrate::{
-    CalibrateSettings, Calibration, calibrate, corrected_dynamic, gyroscope_clocks, prepare_dynamic,
+    CalibrateSettings, Calibration, bias_drift_taken_out, calibrate, corrected_dynamic, gyroscope_clocks,
+    prepare_dynamic, with_removed_drift,
 };
 use crate::selfcal::clock::SampleClock;
 use crate::selfcal::misfit;
@@ -54,7 +55,37 @@ use crate::selfcal::recording::Recording;
 use crate::selfcal::timing::{ClockProblem, TIMING_UNKNOWNS_PER_SAMPLE, relative_rates};
 
 /// Diagnoses `fitting` with the `held_out` recordings of the same array (see the module docs).
+///
+/// With `settings.remove_bias_drift` (`gfcal diagnose --remove-bias-drift`) every recording's bias
+/// drift in time is first taken out as `gfcal calibrate` takes it out (fitted to its own static
+/// phase alone, `selfcal::calibrate::bias_drift_taken_out`: a per-recording effect), and the
+/// recordings so corrected are diagnosed: the gap the drift leaves. The fitting recording's
+/// drift is recorded on the diagnosis's calibration, and its variance added to the printed
+/// scale factors, biases and tilts after the diagnosis (the held-out change tests and the
+/// sensing points are taken before it, as `calibrate`'s own checks are).
 pub fn diagnose_recordings(
+    fitting: &Recording,
+    array: &RecordingArray,
+    held_out: &[Recording],
+    settings: &CalibrateSettings,
+    alpha: f64,
+) -> Result<RecordedDiagnosis, RecordedError> {
+    if !settings.remove_bias_drift {
+        return diagnose_as_recorded(fitting, array, held_out, settings, alpha);
+    }
+    let inner = CalibrateSettings { remove_bias_drift: false, ..*settings };
+    let (fitting, drift) = bias_drift_taken_out(fitting, array, &inner)?;
+    let held_out = held_out
+        .iter()
+        .map(|other| Ok(bias_drift_taken_out(other, array, &inner)?.0))
+        .collect::<Result<Vec<_>, RecordedError>>()?;
+    let mut d = diagnose_as_recorded(&fitting, array, &held_out, &inner, alpha)?;
+    with_removed_drift(&mut d.calibration, drift);
+    Ok(d)
+}
+
+/// [`diagnose_recordings`] of the recordings as they are.
+fn diagnose_as_recorded(
     fitting: &Recording,
     array: &RecordingArray,
     held_out: &[Recording],

@@ -1,5 +1,7 @@
 //! The diagnosis of recordings as JSON (`gfcal diagnose RECORDING --json`): its keys are this
-//! module's.
+//! module's. `bias_drift_removed` is the bias drift taken out of the fitting recording before the
+//! diagnosis (`--remove-bias-drift`; as `gfcal calibrate`'s `static.bias_drift_removed`, null
+//! otherwise) and `bias_drift_note` why one asked for was not.
 
 use serde_json::Value;
 
@@ -74,6 +76,9 @@ pub fn to_json(recording: &str, array: &str, d: &RecordedDiagnosis, alpha: f64) 
             "p_value_largest": f.p_value_largest,
         })).collect::<Vec<_>>(),
         "not_named": d.not_named.iter().map(|(n, w)| serde_json::json!({"name": n, "why": w})).collect::<Vec<_>>(),
+        "bias_drift_removed": d.calibration.removed_bias_drift.as_ref()
+            .map(|drift| crate::selfcal::output::bias_drift_json(drift, &d.calibration)),
+        "bias_drift_note": d.calibration.bias_drift_note,
         "explanation": d.explanation().as_str(),
         "assessment": d.assessment().iter().map(|v| serde_json::json!({
             "kind": v.kind, "trustworthy": v.trustworthy, "reason": v.reason,
