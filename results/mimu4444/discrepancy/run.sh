@@ -6,6 +6,9 @@
 # With --no-clocks: the array file without its packages' sample clocks (written into no_clocks/ from
 # configs/arrays/mimu4444_corners.toml, the clock keys removed), the diagnoses into no_clocks/ (JSON and
 # text only): the "before" of clock_effect.py.
+# With --remove-bias-drift: every recording's bias drift in time taken out first (as gfcal calibrate
+# does by default), the diagnoses into drift_removed/ (JSON and text only): the "after" of
+# drift_effect.py.
 # GFCAL=path/to/gfcal runs that binary instead of building the release one.
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
@@ -14,10 +17,12 @@ out=results/mimu4444/discrepancy
 array=configs/arrays/mimu4444_corners.toml
 gyro=false
 clocks=true
+drift=false
 for a in "$@"; do
   case "$a" in
     --use-gyro) gyro=true ;;
     --no-clocks) clocks=false ;;
+    --remove-bias-drift) drift=true ;;
     *) echo "unknown option $a" >&2; exit 2 ;;
   esac
 done
@@ -33,10 +38,14 @@ for k in 1 2 3 4 5 6; do
   for m in 1 2 3 4 5 6; do [ "$m" = "$k" ] || others+=("$data/recording_$m.parquet"); done
   dir="$out"
   $clocks || dir="$out/no_clocks"
+  if $drift; then dir="$out/drift_removed"; mkdir -p "$dir"; fi
   if $gyro; then extra=(--use-gyro); stem="diagnose_gyro_$k"
+  elif $drift; then extra=(); stem="diagnose_$k"
   elif $clocks; then extra=(--report "$out/diagnose_$k.html"); stem="diagnose_$k"
   else extra=(); stem="diagnose_$k"; fi
+  $drift && extra+=(--remove-bias-drift)
   "$GFCAL" diagnose "$data/recording_$k.parquet" --array "$array" \
     "${extra[@]}" --held-out "${others[@]}" --json "$dir/$stem.json" > "$dir/$stem.txt"
 done
-if $clocks && ! $gyro; then python3 "$out/gaps.py" "$out" > "$out/gaps.md"; fi
+if $clocks && ! $gyro && ! $drift; then python3 "$out/gaps.py" "$out" > "$out/gaps.md"; fi
+if $drift && ! $gyro; then python3 "$out/drift_effect.py" "$out" > "$out/drift_effect.md"; fi
