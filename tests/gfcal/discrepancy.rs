@@ -230,6 +230,27 @@ fn bad_logs_are_refused_with_what_and_where() {
     assert!(m.contains("nan.parquet: data row 2002, column `s2`: NaN is not a finite number"), "{m}");
 }
 
+/// The recordings' flags on a calibration log: refused, naming the flag and the file, with a
+/// non-zero exit and no output written.
+#[test]
+fn the_recordings_flags_on_a_log_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = simulate(&example(), &[], white(50.0), None, 1);
+    let path = dir.path().join("log.csv");
+    log.write(&path).unwrap();
+    let json = dir.path().join("d.json");
+    for flag in ["--remove-bias-drift", "--use-gyro"] {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_gfcal"))
+            .args(["diagnose", path.to_str().unwrap(), flag, "--json", json.to_str().unwrap()])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{flag}");
+        assert!(stderr.contains(&format!("{flag} takes real recordings")) && stderr.contains("log.csv"), "{stderr}");
+        assert!(!json.exists(), "{flag}: no output is written");
+    }
+}
+
 #[test]
 fn a_log_too_short_to_fit_says_how_many_steps_it_needs() {
     let cfg = example();
