@@ -313,7 +313,7 @@ pub fn with_removed_drift(cal: &mut Calibration, drift: Result<StaticDrift, Stri
 /// phase alone (no rotation phase: its pull and its own gaps kept out of the drift); the inner
 /// `Err` says why there is none (too few poses for a fit without a rotation phase, or for the
 /// drift's five parameters an accelerometer).
-pub fn static_phase_drift(
+fn static_phase_drift(
     rec: &Recording,
     array: &RecordingArray,
     settings: &CalibrateSettings,
@@ -555,6 +555,16 @@ fn estimate_clocks(
     // away, which is why this once stopped at two. If `robust`, Huber's iterations start once an
     // iteration changes the residual by under HUBER_START_TOLERANCE, and run until no parameter
     // moves by HUBER_TOLERANCE_SIGMA of its sigma (at most MAX_HUBER_ITERATIONS).
+    // The settings of the outer iterations' refits: the rate's sigmas, the unseen check and the
+    // solution's check left to the end, the dynamic variance as held (Huber's) or refitted.
+    let refit_settings = |held_dynamic_variance_m2_s4: Option<f64>, max_iterations: usize| FitSettings {
+        rate_sigmas: false,
+        held_dynamic_variance_m2_s4,
+        trust_start_unseen: true,
+        solution_check: false,
+        max_iterations,
+        ..*settings
+    };
     let mut iterations = 0;
     let mut previous_rms = before;
     loop {
@@ -575,17 +585,11 @@ fn estimate_clocks(
         };
         // Huber's refits take HUBER_REFIT_ITERATIONS Gauss-Newton iterations a round: their
         // loop is what converges (the last refit is run to its end after it).
-        let refit = FitSettings {
-            rate_sigmas: false,
-            held_dynamic_variance_m2_s4: held_variance,
-            trust_start_unseen: true,
-            solution_check: false,
-            max_iterations: match huber {
-                Some(_) => HUBER_REFIT_ITERATIONS.min(settings.max_iterations),
-                None => settings.max_iterations,
-            },
-            ..*settings
+        let max_iterations = match huber {
+            Some(_) => HUBER_REFIT_ITERATIONS.min(settings.max_iterations),
+            None => settings.max_iterations,
         };
+        let refit = refit_settings(held_variance, max_iterations);
         fit = fit_from(&array.array, stat, Some(&corrected), &refit, Some(&fit)).map_err(ClockFailure::Fit)?;
         fitted_to = corrected;
         fitted_shift.clone_from(&shift);
@@ -647,13 +651,7 @@ fn estimate_clocks(
     // Huber's last refit run to its end (its weights, shift and clocks as they were), so that
     // the fit's convergence is its own.
     if huber.is_some() {
-        let last = FitSettings {
-            rate_sigmas: false,
-            held_dynamic_variance_m2_s4: held_variance,
-            trust_start_unseen: true,
-            solution_check: false,
-            ..*settings
-        };
+        let last = refit_settings(held_variance, settings.max_iterations);
         fit = fit_from(&array.array, stat, Some(&fitted_to), &last, Some(&fit)).map_err(ClockFailure::Fit)?;
     }
     // The refits left their solution's check out (`FitSettings::solution_check`).
