@@ -11,7 +11,7 @@ use gfcal::config::array::load_recording_array;
 use gfcal::selfcal::calibrate::{CalibrateError, CalibrateSettings, Calibration, calibrate as run_calibration};
 use gfcal::selfcal::fit::{FitError, FitSettings};
 use gfcal::selfcal::model::PER_ACCEL;
-use gfcal::selfcal::predict::{HeldOut, Refit, check_predictable, predict_as_fitted};
+use gfcal::selfcal::predict::{HeldOut, check_predictable, predict_held_out};
 use gfcal::selfcal::recording::{Recording, RecordingError};
 use gfcal::selfcal::segment::DetectorSettings;
 
@@ -119,8 +119,8 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
     }
     let mut held_results = Vec::new();
     for other in &held {
-        let (h, _) = predict_as_fitted(&array.array, &cal, other, &settings.detector, a.gravity_m_s2, Refit::Pose)
-            .map_err(recording_error)?;
+        let h = predict_held_out(&array, &cal, other, &settings)
+            .map_err(|e| calibrate_error(e, other, &array, &settings.detector))?;
         held_results.push((other.path.clone(), h));
     }
     print!("{}", summary_text(&cal, &rec, elapsed_s, &held_results));
@@ -351,8 +351,9 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
     for (p, h) in held {
         let _ = writeln!(
             s,
-            "held out {}: static residual RMS {:.3e} m/s^2 (noise {:.3e}, chi2/dof {:.1}); dynamic residual RMS {:.3e} m/s^2 (noise {:.3e}, rotation-phase chi2/dof {:.1})",
+            "held out {}{}: static residual RMS {:.3e} m/s^2 (noise {:.3e}, chi2/dof {:.1}); dynamic residual RMS {:.3e} m/s^2 (noise {:.3e}, rotation-phase chi2/dof {:.1})",
             p.display(),
+            if h.bias_drift_removed { " (its own bias drift taken out)" } else { "" },
             h.static_residual_rms_m_s2,
             h.static_noise_rms_m_s2,
             h.static_chi2_dof,

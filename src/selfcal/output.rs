@@ -304,5 +304,6 @@ pub fn held_out_json(path: &Path, h: &HeldOut) -> Value {
         "dynamic_residual_rms_m_s2": num(h.dynamic_residual_rms_m_s2),
         "dynamic_noise_rms_m_s2": num(h.dynamic_noise_rms_m_s2),
         "dynamic_chi2_dof": num(h.dynamic_chi2_dof),
+        "bias_drift_removed": h.bias_drift_removed,
     })
 }

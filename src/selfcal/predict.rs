@@ -5,13 +5,16 @@
 
 use nalgebra::Vector3;
 
-use super::calibrate::{prepare_dynamic, static_data};
+use super::calibrate::{
+    CalibrateError, CalibrateSettings, Calibration, bias_drift_taken_out, prepare_dynamic, static_data,
+};
 use super::data::{DynamicData, StaticData};
 use super::model::{SampleMotion, SensorSet, sensors};
 use super::recording::Recording;
 use super::segment::{DetectorSettings, segment};
 use super::track;
 use crate::array::Array;
+use crate::array::wiring::RecordingArray;
 use crate::sensor::misalignment::tilt_basis;
 
 /// Residuals of a held-out recording.
@@ -31,6 +34,9 @@ pub struct HeldOut {
     /// The rotation-phase chi^2/dof with the motion tracked there ([`super::misfit`]: the same
     /// metric as `calibrate`'s); NaN without a rotation phase.
     pub dynamic_chi2_dof: f64,
+    /// Whether the recording's own bias drift in time was taken out before the prediction
+    /// ([`predict_held_out`]).
+    pub bias_drift_removed: bool,
 }
 
 /// What a held-out recording refits besides the motion.
@@ -80,6 +86,32 @@ pub fn predict_as_fitted(
 ) -> Result<(HeldOut, HeldOutState), super::recording::RecordingError> {
     let dynamic_w: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
     predict_with_state(array, &cal.fit.params, rec, detector, gravity_m_s2, refit, Some(&dynamic_w), cal.use_gyro)
+}
+
+/// A held-out recording predicted as `gfcal calibrate --held-out` predicts it: as `cal` was
+/// fitted, the pose directions refitted, and with its own bias drift in time taken out first
+/// where the calibration took the fitting recording's out (`settings.remove_bias_drift`): the
+/// drift is each recording's own, as its turn-on bias is, and `gfcal diagnose
+/// --remove-bias-drift` treats its held-out recordings so. A recording whose drift cannot be
+/// fitted (too few poses) is predicted as it is (`bias_drift_removed` false).
+pub fn predict_held_out(
+    array: &RecordingArray,
+    cal: &Calibration,
+    rec: &Recording,
+    settings: &CalibrateSettings,
+) -> Result<HeldOut, CalibrateError> {
+    let as_fitted = |rec: &Recording| {
+        predict_as_fitted(&array.array, cal, rec, &settings.detector, settings.fit.gravity_m_s2, Refit::Pose)
+            .map(|(h, _)| h)
+            .map_err(|e| CalibrateError::Recording { path: rec.path.clone(), problem: e.to_string() })
+    };
+    if !settings.remove_bias_drift {
+        return as_fitted(rec);
+    }
+    let (corrected, drift) = bias_drift_taken_out(rec, array, settings)?;
+    let mut held = as_fitted(&corrected)?;
+    held.bias_drift_removed = drift.is_ok();
+    Ok(held)
 }
 
 /// Predicts `rec` with `params`, refitting what `refit` says.
@@ -221,6 +253,7 @@ pub fn predict_with_state(
         dynamic_residual_rms_m_s2: dyn_rms,
         dynamic_noise_rms_m_s2: dyn_noise,
         dynamic_chi2_dof: dyn_chi2_dof,
+        bias_drift_removed: false,
     };
     let state = HeldOutState { params, stat, static_t_s, up, dynamic: prepared.data, motion, t_mid_s };
     Ok((held, state))

@@ -1249,6 +1249,10 @@ fn print_where_the_rotation_phase_residual_sits() {
     }
 }
 
+/// Per choice of `tau^2` (the own, then each null), the shares of the squares the snap and the snap
+/// with the angular snap remove.
+type Shares = Vec<(f64, f64)>;
+
 /// The shares of a calibration's rotation-phase residual (after its clocks) that the timing's
 /// second-order term would remove: per sample, the residual regressed on the columns already
 /// fitted (the motion's `f`, `alpha`, `omega` and the first-order timing's jerk and angular jerk,
@@ -1258,11 +1262,7 @@ fn print_where_the_rotation_phase_residual_sits() {
 /// same with `tau^2` handed on to the package `shift` places further (the nulls: the same number of
 /// unknowns, the wrong packages). Over every sample with all 24 outputs, and over the bulk (those
 /// samples less the 5% with the largest squares). `None` without clocks.
-fn second_order_timing_shares(
-    array: &RecordingArray,
-    rec: &Recording,
-    shifts: &[usize],
-) -> Option<(Vec<(f64, f64)>, Vec<(f64, f64)>)> {
+fn second_order_timing_shares(array: &RecordingArray, rec: &Recording, shifts: &[usize]) -> Option<(Shares, Shares)> {
     let cal = calibrate(rec, array, &CalibrateSettings::default()).expect("calibrates");
     let clocks = cal.clocks.as_ref()?;
     let d = prepare_dynamic(rec, &cal.segmentation, false, cal.gyro_bias_rad_s).data.expect("a rotation phase");
@@ -1352,12 +1352,12 @@ fn second_order_timing_shares(
 #[ignore = "real data, 6 calibrations and 3 simulated ones: prints the second-order timing's shares"]
 fn print_whether_what_the_clocks_leave_is_second_order_timing() {
     let shifts = [1, 2, 3, 4, 5];
-    let show = |name: String, shares: Option<(Vec<(f64, f64)>, Vec<(f64, f64)>)>| {
+    let show = |name: String, shares: Option<(Shares, Shares)>| {
         let (all, bulk) = shares.expect("clocks fitted");
         show_one(format!("{name}, all samples"), all);
         show_one(format!("{name}, the bulk"), bulk);
     };
-    fn show_one(name: String, shares: Vec<(f64, f64)>) {
+    fn show_one(name: String, shares: Shares) {
         let nulls = &shares[1..];
         let max = |f: fn(&(f64, f64)) -> f64| nulls.iter().map(f).fold(0.0, f64::max);
         println!(
