@@ -69,6 +69,9 @@ pub struct RecordingArray {
     pub package_of: Vec<Option<usize>>,
     /// The column holding the time of each sample, in seconds (the array file's `time_column`).
     pub time_column: String,
+    /// How long the accelerometers sample after the reference gyroscopes, s (the array file's
+    /// `accelerometer_lag_ms`; 0 by default).
+    pub accelerometer_lag_s: f64,
     /// The array file, for messages.
     pub path: PathBuf,
 }
@@ -86,6 +89,7 @@ impl RecordingArray {
             packages: Vec::new(),
             package_of: vec![None; n],
             time_column: DEFAULT_TIME_COLUMN.to_string(),
+            accelerometer_lag_s: 0.0,
             path: path.to_path_buf(),
         }
     }

@@ -54,6 +54,10 @@
 //!
 //! Without `[[package]]` entries, the names the accelerometers give make packages without a
 //! clock. With them, every name must be declared.
+//!
+//! `accelerometer_lag_ms` (top level, default 0) says how long the accelerometers sample after the
+//! reference gyroscopes (their filters' delays differ): `--use-gyro` then reads the gyroscopes'
+//! rate that much earlier (four-point Lagrange interpolation, `selfcal::calibrate`).
 
 use std::path::Path;
 
@@ -89,6 +93,9 @@ pub struct ArrayFile {
     pub gyroscope: Vec<GyroscopeEntry>,
     #[serde(default)]
     pub package: Vec<PackageEntry>,
+    /// How long every accelerometer samples after the reference gyroscopes, ms (default 0):
+    /// `--use-gyro` reads the gyroscopes' rate this much earlier.
+    pub accelerometer_lag_ms: Option<f64>,
 }
 
 /// A package (chip) and its sample clock.
@@ -225,6 +232,24 @@ pub fn load_recording_array(path: &Path) -> Result<RecordingArray, ConfigError> 
         )
         .in_file(path));
     }
+    let accelerometer_lag_s = match file.accelerometer_lag_ms {
+        None => 0.0,
+        Some(_) if gyroscopes.is_empty() => {
+            return Err(Bad::new(
+                "accelerometer_lag_ms",
+                "needs [[gyroscope]] entries (the lag is the accelerometers' behind the gyroscopes)",
+            )
+            .in_file(path));
+        }
+        Some(ms) if !ms.is_finite() || ms.abs() > MAX_ACCELEROMETER_LAG_MS => {
+            return Err(Bad::new(
+                "accelerometer_lag_ms",
+                format!("must be a number of milliseconds within +-{MAX_ACCELEROMETER_LAG_MS}, got {ms}"),
+            )
+            .in_file(path));
+        }
+        Some(ms) => ms * 1e-3,
+    };
     Ok(RecordingArray {
         array,
         accelerometer_columns,
@@ -233,9 +258,14 @@ pub fn load_recording_array(path: &Path) -> Result<RecordingArray, ConfigError> 
         packages,
         package_of,
         time_column,
+        accelerometer_lag_s,
         path: path.to_path_buf(),
     })
 }
+
+/// The largest `accelerometer_lag_ms` an array file may declare (a lag of the order of a sensor's
+/// filter delay, not of its sample period's multiples).
+const MAX_ACCELEROMETER_LAG_MS: f64 = 100.0;
 
 /// The packages of an array file: those `[[package]]` declares, or else those the sensors name
 /// (in the order they first appear), with the package of every accelerometer and gyroscope.

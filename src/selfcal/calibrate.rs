@@ -823,6 +823,8 @@ pub fn prepare_dynamic(
     gyro_bias_rad_s: Option<Vector3<f64>>,
 ) -> PreparedDynamic {
     let n = rec.accelerometers();
+    // The gyroscopes read at the accelerometers' instants: `accelerometer_lag_s` earlier.
+    let lagged = use_gyro.then(|| LaggedGyroscopes::new(rec)).flatten();
     let mut index = Vec::new();
     let mut run_starts = Vec::new();
     let mut clipped_outputs = 0;
@@ -852,11 +854,58 @@ pub fn prepare_dynamic(
         run_starts,
         reference_rate_rad_s: use_gyro.then(|| {
             let b = gyro_bias_rad_s.unwrap_or_default();
-            index.iter().map(|&i| rec.gyro_rate_rad_s[i] - b).collect()
+            match &lagged {
+                Some(l) => index.iter().map(|&i| l.rate_rad_s(rec, i) - b).collect(),
+                None => index.iter().map(|&i| rec.gyro_rate_rad_s[i] - b).collect(),
+            }
         }),
         extra_unknowns_per_sample: 0,
     });
     PreparedDynamic { data, index, clipped_outputs, dropped_samples }
+}
+
+/// The reference gyroscopes' rate at `t - accelerometer_lag_s` (where the accelerometers sample),
+/// by four-point (cubic) Lagrange interpolation on the host's median step: four samples, so that
+/// a gyroscope's rail spoils few neighbours. A sample whose four read a railed gyroscope keeps the
+/// rate at its own instant (as without a lag); a railed sample itself is dropped as before.
+struct LaggedGyroscopes {
+    /// The lag in host steps.
+    steps: f64,
+}
+
+impl LaggedGyroscopes {
+    /// `None` without gyroscopes, without a lag, or without a host step.
+    fn new(rec: &Recording) -> Option<Self> {
+        if rec.accelerometer_lag_s == 0.0 || rec.gyro_rate_rad_s.is_empty() {
+            return None;
+        }
+        let dt = super::timing::host_dt_s(&rec.t_s)?;
+        Some(Self { steps: rec.accelerometer_lag_s / dt })
+    }
+
+    /// The rate at sample `i` less the lag (the rate at `i` where the four samples it reads run
+    /// off the recording or include a rail).
+    fn rate_rad_s(&self, rec: &Recording, i: usize) -> Vector3<f64> {
+        let position = i as f64 - self.steps;
+        let base = position.floor();
+        let u = position - base;
+        let first = base as i64 - 1;
+        let len = rec.gyro_rate_rad_s.len() as i64;
+        if first < 0 || first + 3 >= len {
+            return rec.gyro_rate_rad_s[i];
+        }
+        let first = first as usize;
+        if rec.gyro_clipped[first..first + 4].iter().any(|&c| c) {
+            return rec.gyro_rate_rad_s[i];
+        }
+        let w = [
+            -u * (u - 1.0) * (u - 2.0) / 6.0,
+            (u + 1.0) * (u - 1.0) * (u - 2.0) / 2.0,
+            -(u + 1.0) * u * (u - 2.0) / 2.0,
+            (u + 1.0) * u * (u - 1.0) / 6.0,
+        ];
+        (0..4).map(|k| rec.gyro_rate_rad_s[first + k] * w[k]).sum()
+    }
 }
 
 /// Gyroscope bias (array axes): the mean reference rate over the static intervals.
@@ -950,5 +999,59 @@ fn gyro_check(rec: &Recording, index: &[usize], fit: &Fit, bias: &Vector3<f64>) 
         frame_rotation_rad: angle,
         median_magnitude_ratio,
         by_rate,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A recording of `rows` samples 16 ms apart whose gyroscopes read a smooth rate (two
+    /// sinusoids and a ramp), with the accelerometers `lag_s` behind them.
+    fn recording(rows: usize, lag_s: f64) -> (Recording, impl Fn(f64) -> Vector3<f64>) {
+        let rate = |t: f64| {
+            let w = 2.0 * std::f64::consts::PI * 5.0;
+            Vector3::new(20.0 * (w * t).sin(), 15.0 * (0.6 * w * t).cos(), 3.0 * t)
+        };
+        let t_s: Vec<f64> = (0..rows).map(|i| 0.016 * i as f64).collect();
+        let rec = Recording {
+            path: "lagged".into(),
+            gyro_rate_rad_s: t_s.iter().map(|&t| rate(t)).collect(),
+            gyro_clipped: vec![false; rows],
+            t_s,
+            outputs: DMatrix::zeros(rows, 1),
+            clipped: vec![false; rows],
+            step: None,
+            package_gyro_rate_rad_s: Vec::new(),
+            accelerometer_lag_s: lag_s,
+        };
+        (rec, rate)
+    }
+
+    /// The lagged rate against the closed form at `t - lag` (5 Hz at 62.5 Hz: four-point
+    /// Lagrange is good to about 1e-3 of the amplitude, 20 rad/s, there), for lags within a step and beyond
+    /// one; a sample whose four neighbours include a rail keeps its own rate; no lag, no copy.
+    #[test]
+    fn the_gyroscopes_are_read_lag_earlier_by_four_point_interpolation() {
+        for lag_s in [1.6e-3, -0.7e-3, 21e-3] {
+            let (rec, rate) = recording(200, lag_s);
+            let lagged = LaggedGyroscopes::new(&rec).expect("a lag and gyroscopes");
+            for i in 5..195 {
+                let want = rate(rec.t_s[i] - lag_s);
+                let got = lagged.rate_rad_s(&rec, i);
+                assert!((got - want).norm() < 5e-2, "lag {lag_s} s, sample {i}: {got} vs {want}");
+            }
+            // Without the lag the same samples are a step's worth off: the test can fail.
+            let off = (rec.gyro_rate_rad_s[100] - rate(rec.t_s[100] - lag_s)).norm();
+            assert!(off > 0.1, "lag {lag_s} s: the undelayed rate is off by {off}");
+        }
+        let (mut rec, _) = recording(50, 1.6e-3);
+        rec.gyro_clipped[20] = true;
+        let lagged = LaggedGyroscopes::new(&rec).expect("a lag");
+        // Sample 21 reads samples 19-22 (rail at 20): its own rate; sample 23 reads 21-24: lagged.
+        assert_eq!(lagged.rate_rad_s(&rec, 21), rec.gyro_rate_rad_s[21]);
+        assert_ne!(lagged.rate_rad_s(&rec, 23), rec.gyro_rate_rad_s[23]);
+        let (rec, _) = recording(50, 0.0);
+        assert!(LaggedGyroscopes::new(&rec).is_none());
     }
 }

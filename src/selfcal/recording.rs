@@ -52,6 +52,9 @@ pub struct Recording {
     /// (least squares over the package's gyroscope axes), rad/s; empty for a package whose axes do
     /// not span three dimensions, and empty altogether unless every gyroscope names its package.
     pub package_gyro_rate_rad_s: Vec<Vec<Vector3<f64>>>,
+    /// How long the accelerometers sample after the gyroscopes, s (the array file's
+    /// `accelerometer_lag_ms`): `--use-gyro` reads the gyroscopes' rate this much earlier.
+    pub accelerometer_lag_s: f64,
 }
 
 /// A column's values at one magnitude this close below its stated range, held at least
@@ -274,7 +277,17 @@ impl Recording {
                 package_gyro_rate_rad_s.push(rates);
             }
         }
-        Ok(Self { path, t_s, outputs, clipped, step, gyro_rate_rad_s, gyro_clipped, package_gyro_rate_rad_s })
+        Ok(Self {
+            path,
+            t_s,
+            outputs,
+            clipped,
+            step,
+            gyro_rate_rad_s,
+            gyro_clipped,
+            package_gyro_rate_rad_s,
+            accelerometer_lag_s: array.accelerometer_lag_s,
+        })
     }
 
     /// Checks that a second recording is of the same array (for held-out prediction).

@@ -508,7 +508,10 @@ fn simulate_smooth<R: Rng + ?Sized>(
     }
     let table =
         Table { path: std::path::PathBuf::from("simulated"), first_null_row: vec![None; names.len()], names, data };
-    let recording = Recording::from_table(&table, array)?;
+    let mut recording = Recording::from_table(&table, array)?;
+    // The simulator reads the gyroscopes at the accelerometers' instants: no lag between them
+    // (an array file's `accelerometer_lag_ms` is a real board's, not simulated).
+    recording.accelerometer_lag_s = 0.0;
     let up = motions.iter().map(|m| -m.gravity_b_m_s2.normalize()).collect();
     let motion = motions
         .iter()
@@ -1003,7 +1006,10 @@ fn simulate_fine<R: Rng + ?Sized>(
     }
     let table =
         Table { path: std::path::PathBuf::from("simulated"), first_null_row: vec![None; names.len()], names, data };
-    let recording = Recording::from_table(&table, array)?;
+    let mut recording = Recording::from_table(&table, array)?;
+    // The simulator reads the gyroscopes at the accelerometers' instants: no lag between them
+    // (an array file's `accelerometer_lag_ms` is a real board's, not simulated).
+    recording.accelerometer_lag_s = 0.0;
     let up = motions.iter().map(|m| -m.gravity_b_m_s2.normalize()).collect();
     let motion = motions
         .iter()

@@ -9,6 +9,7 @@ mod clock;
 mod clock_recovery;
 mod common;
 mod discrepancy;
+mod gyro_lag;
 mod lincov;
 mod mc;
 mod mechanization;
