@@ -471,10 +471,15 @@ fn a_clocked_array_whose_clocks_are_not_resolved_gets_the_uncapped_fit() {
     use gfcal::selfcal::calibrate::{CLOCKED_START_ITERATIONS, prepare_dynamic};
     use gfcal::selfcal::fit::{FitSettings, fit};
     let text = std::fs::read_to_string(repo().join("configs/arrays/mimu4444_corners.toml")).expect("array file");
-    let without_gyroscopes = &text[..text.find("[[gyroscope]]").expect("the file lists gyroscopes")];
+    // Without the gyroscopes, and without the accelerometers' lag behind them (refused without them).
+    let without_gyroscopes: String = text[..text.find("[[gyroscope]]").expect("the file lists gyroscopes")]
+        .lines()
+        .filter(|l| !l.starts_with("accelerometer_lag_ms"))
+        .map(|l| format!("{l}\n"))
+        .collect();
     let dir = tempfile::tempdir().expect("temporary directory");
     let path = dir.path().join("mimu4444_corners_without_gyroscopes.toml");
-    std::fs::write(&path, without_gyroscopes).expect("written");
+    std::fs::write(&path, &without_gyroscopes).expect("written");
     let array = load_recording_array(&path).expect("array file");
     assert!(array.has_sample_clocks() && array.gyroscopes.is_empty());
     let rec = gfcal::selfcal::recording::Recording::read(Path::new(&shared_recording(4)), &array).expect("reads");
