@@ -10,6 +10,16 @@ use gfcal::selfcal::simulate::{Vibration, simulate};
 
 use super::simulate::{config_truth, matched_cell};
 
+/// The matched protocol with a shortened rotation phase (30 s, no vibration or clocks: the static
+/// phase is what matters here) and the board's poses and drift.
+fn short_drifting_cell() -> gfcal::mc::protocol::ProtocolCell {
+    let mut cell = matched_cell();
+    cell.protocol.dynamic_s = 30.0;
+    cell.protocol.clocks = None;
+    cell.protocol.vibration = Vibration::default();
+    cell
+}
+
 /// RMS over the accelerometers of the errors of scale factors and tilts (parameters 0, 2, 3)
 /// over their sigmas, the joint fit's and the drift refit's.
 fn rms_z(cal: &Calibration, truth: &SensorSet) -> (f64, f64) {
@@ -36,11 +46,8 @@ fn rms_z(cal: &Calibration, truth: &SensorSet) -> (f64, f64) {
 /// tilts are within 1.5 sigmas RMS, and the check on the corrected recording does not reject.
 #[test]
 fn the_drift_is_found_and_its_refit_lands_on_the_truth() {
-    let mut cell = matched_cell();
+    let cell = short_drifting_cell();
     assert!(cell.protocol.bias_drift.is_some() && cell.protocol.pose_up.is_some(), "the board's poses and drift");
-    cell.protocol.dynamic_s = 30.0;
-    cell.protocol.clocks = None;
-    cell.protocol.vibration = Vibration::default();
     let array = &cell.array;
     let truth = config_truth(array, 4);
     let run_with = |protocol: &gfcal::selfcal::simulate::Protocol, settings: &CalibrateSettings| {
@@ -100,10 +107,7 @@ fn the_drift_is_found_and_its_refit_lands_on_the_truth() {
 #[test]
 fn diagnosing_with_the_drift_taken_out_shrinks_the_static_gap() {
     use gfcal::discrepancy::recorded::diagnose_recordings;
-    let mut cell = matched_cell();
-    cell.protocol.dynamic_s = 30.0;
-    cell.protocol.clocks = None;
-    cell.protocol.vibration = Vibration::default();
+    let cell = short_drifting_cell();
     let array = &cell.array;
     let truth = config_truth(array, 4);
     let sim = simulate(array, &truth, &cell.protocol, &mut trial_rng(4, 1)).expect("simulated");
@@ -168,10 +172,7 @@ fn diagnosing_with_the_drift_taken_out_shrinks_the_static_gap() {
 #[test]
 fn a_held_out_recordings_own_drift_is_taken_out_as_the_fitting_ones() {
     use gfcal::selfcal::predict::predict_held_out;
-    let mut cell = matched_cell();
-    cell.protocol.dynamic_s = 30.0;
-    cell.protocol.clocks = None;
-    cell.protocol.vibration = Vibration::default();
+    let cell = short_drifting_cell();
     let array = &cell.array;
     let truth = config_truth(array, 4);
     let fitting = simulate(array, &truth, &cell.protocol, &mut trial_rng(4, 1)).expect("simulated");
