@@ -57,6 +57,9 @@ pub enum CalibrateError {
     Recording { path: std::path::PathBuf, problem: String },
     #[error("{}: {source}", path.display())]
     Fit { path: std::path::PathBuf, source: FitError },
+    /// A recording that cannot be read or predicted (its message names it).
+    #[error(transparent)]
+    Read(#[from] super::recording::RecordingError),
 }
 
 /// The gyroscope-free rate against the reference gyroscopes (bias-corrected from the static

@@ -103,7 +103,7 @@ pub fn predict_held_out(
     let as_fitted = |rec: &Recording| {
         predict_as_fitted(&array.array, cal, rec, &settings.detector, settings.fit.gravity_m_s2, Refit::Pose)
             .map(|(h, _)| h)
-            .map_err(|e| CalibrateError::Recording { path: rec.path.clone(), problem: e.to_string() })
+            .map_err(CalibrateError::from)
     };
     if !settings.remove_bias_drift {
         return as_fitted(rec);

@@ -384,6 +384,15 @@ pub fn simulate<R: Rng + ?Sized>(
     }
 }
 
+/// The simulated table read as a recording of `array`. The simulator reads the gyroscopes at the
+/// accelerometers' instants: no lag between them (an array file's `accelerometer_lag_ms` is a
+/// real board's, not simulated).
+fn simulated_recording(table: &Table, array: &RecordingArray) -> Result<Recording, RecordingError> {
+    let mut recording = Recording::from_table(table, array)?;
+    recording.accelerometer_lag_s = 0.0;
+    Ok(recording)
+}
+
 /// Today's recording: the motion at the host's instants, every part read there.
 fn simulate_smooth<R: Rng + ?Sized>(
     array: &RecordingArray,
@@ -508,10 +517,7 @@ fn simulate_smooth<R: Rng + ?Sized>(
     }
     let table =
         Table { path: std::path::PathBuf::from("simulated"), first_null_row: vec![None; names.len()], names, data };
-    let mut recording = Recording::from_table(&table, array)?;
-    // The simulator reads the gyroscopes at the accelerometers' instants: no lag between them
-    // (an array file's `accelerometer_lag_ms` is a real board's, not simulated).
-    recording.accelerometer_lag_s = 0.0;
+    let recording = simulated_recording(&table, array)?;
     let up = motions.iter().map(|m| -m.gravity_b_m_s2.normalize()).collect();
     let motion = motions
         .iter()
@@ -1006,10 +1012,7 @@ fn simulate_fine<R: Rng + ?Sized>(
     }
     let table =
         Table { path: std::path::PathBuf::from("simulated"), first_null_row: vec![None; names.len()], names, data };
-    let mut recording = Recording::from_table(&table, array)?;
-    // The simulator reads the gyroscopes at the accelerometers' instants: no lag between them
-    // (an array file's `accelerometer_lag_ms` is a real board's, not simulated).
-    recording.accelerometer_lag_s = 0.0;
+    let recording = simulated_recording(&table, array)?;
     let up = motions.iter().map(|m| -m.gravity_b_m_s2.normalize()).collect();
     let motion = motions
         .iter()
