@@ -39,6 +39,10 @@
 //! common_bias_drift_ug_per_s = { dist = "normal", mean = -1.6, sigma = 1.1 }  # per recording, every accelerometer
 //! anti_alias_time_constant_ms = 0.0     # first-order filter before each accelerometer's sampling
 //! gyro_anti_alias_time_constant_ms = 0.0   # the gyroscopes' (default: the accelerometers')
+//! accelerometer_lag_ms = 0.0            # every accelerometer samples this long before its gyroscope
+//!                                       # (the simulated recording declares it, as an array file's
+//!                                       # accelerometer_lag_ms declares a real board's); within half
+//!                                       # the sample interval
 //! ```
 //!
 //! A `fixed` clock distribution takes `value`: one number for every package or one per package
@@ -65,7 +69,9 @@ use crate::selfcal::calibrate::{CalibrateSettings, calibrate};
 use crate::selfcal::drift::BiasDriftSpread;
 use crate::selfcal::model::{PER_ACCEL, SensorSet};
 use crate::selfcal::sampling::{ClockSpread, Spread};
-use crate::selfcal::simulate::{AntiAlias, FINE_STEP_S, MOTION_BAND_HZ, VIBRATION_BAND_HZ, Vibration};
+use crate::selfcal::simulate::{
+    AntiAlias, FINE_STEP_S, MAX_ACCELEROMETER_LAG_SAMPLES, MOTION_BAND_HZ, VIBRATION_BAND_HZ, Vibration,
+};
 use crate::selfcal::simulate::{Protocol, bound_at_truth, drift_removal_variance_at_truth, project_to_gauge, simulate};
 use crate::selfcal::vibration::LowPass;
 use crate::units::M_S2_PER_UG;
@@ -104,6 +110,7 @@ pub struct ProtocolSection {
     pub common_bias_drift_ug_per_s: Option<ClockDist>,
     pub anti_alias_time_constant_ms: Option<f64>,
     pub gyro_anti_alias_time_constant_ms: Option<f64>,
+    pub accelerometer_lag_ms: Option<f64>,
 }
 
 /// The kind of a clock quantity's distribution (the `[errors]` section's kinds).
@@ -344,6 +351,31 @@ impl ProtocolSection {
         };
         let anti_alias =
             AntiAlias { accel_time_constant_s: accel_tau_ms * 1e-3, gyro_time_constant_s: gyro_tau_ms * 1e-3 };
+        let accelerometer_lag_s = match self.accelerometer_lag_ms {
+            None => 0.0,
+            Some(ms) => {
+                let key = "protocol.accelerometer_lag_ms";
+                let half_interval_ms = MAX_ACCELEROMETER_LAG_SAMPLES * 1e3 / rate;
+                if finite(key, ms)?.abs() > half_interval_ms {
+                    return Err(Bad::new(
+                        key,
+                        format!(
+                            "a lag of {ms} ms is beyond the {half_interval_ms} ms (half the sample interval) the simulator generates"
+                        ),
+                    ));
+                }
+                if ms != 0.0 && array.gyroscopes.is_empty() {
+                    return Err(Bad::new(
+                        key,
+                        format!(
+                            "the array file {} lists no gyroscopes for the accelerometers to lag",
+                            array.path.display()
+                        ),
+                    ));
+                }
+                ms * 1e-3
+            }
+        };
         Ok(ProtocolCell {
             protocol: Protocol {
                 poses: self.poses,
@@ -363,6 +395,7 @@ impl ProtocolSection {
                 clocks,
                 anti_alias,
                 bias_drift: self.bias_drift(n)?,
+                accelerometer_lag_s,
                 fine_step_s: FINE_STEP_S,
             },
             array,

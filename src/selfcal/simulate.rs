@@ -13,7 +13,8 @@
 //! sit before each part's internal sampling ([`AntiAlias`]). With any of them on, the motion is
 //! integrated on a fine grid ([`Protocol::fine_step_s`], 0.1 ms: see [`FINE_STEP_S`]) and every part is
 //! read at its package's own instant; with all of them off the recording is today's, bit for bit
-//! (the same code, the same random draws). A bias drift in time ([`super::drift`], off by default)
+//! (the same code, the same random draws). The accelerometers may sample a fixed time before
+//! their gyroscopes ([`Protocol::accelerometer_lag_s`], on the fine grid). A bias drift in time ([`super::drift`], off by default)
 //! is added to every accelerometer output after the motion.
 
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord, clippy::useless_vec)]
@@ -76,10 +77,23 @@ pub struct Protocol {
     /// The accelerometers' bias drift in time, drawn per recording ([`super::drift`]; `None`:
     /// constant biases).
     pub bias_drift: Option<BiasDriftSpread>,
-    /// The time step of the motion's integration when the vibration, the clocks or the filters
-    /// are on, s ([`FINE_STEP_S`]).
+    /// How long every accelerometer samples before its package's gyroscope, s (0: at the same
+    /// instant): each accelerometer output is the motion [`Self::accelerometer_lag_s`] before the
+    /// instant its gyroscope (or the host, where the package has no clock) samples. The real
+    /// board's accelerometers lag their gyroscopes by about 1.6 ms (an array file's
+    /// `accelerometer_lag_ms`, which `gfcal calibrate --use-gyro` corrects). Its magnitude must be
+    /// below [`MAX_ACCELEROMETER_LAG_SAMPLES`] of the host's sample interval.
+    pub accelerometer_lag_s: f64,
+    /// The time step of the motion's integration when the vibration, the clocks, the filters or
+    /// the accelerometers' lag are on, s ([`FINE_STEP_S`]).
     pub fine_step_s: f64,
 }
+
+/// The largest accelerometer lag the simulator generates, in host sample intervals: every
+/// sample's parts are read in time order, one sample after another, so no part of a sample may
+/// be read before any part of the one before (a package's age is below one of its ticks, much
+/// shorter than the host's interval).
+pub const MAX_ACCELEROMETER_LAG_SAMPLES: f64 = 0.5;
 
 /// The default band of the rotation phase's motion, Hz.
 pub const MOTION_BAND_HZ: [f64; 2] = [0.3, 2.0];
@@ -166,7 +180,7 @@ impl AntiAlias {
 impl Protocol {
     /// Whether the recording is today's smooth one, sampled at the host's instants.
     pub fn is_smooth(&self) -> bool {
-        !self.vibration.is_on() && self.clocks.is_none() && !self.anti_alias.is_on()
+        !self.vibration.is_on() && self.clocks.is_none() && !self.anti_alias.is_on() && self.accelerometer_lag_s == 0.0
     }
 
     /// The centre of the rotation phase, s: the clocks' reference instant.
@@ -181,10 +195,12 @@ pub struct Simulated {
     pub recording: Recording,
     /// Up direction (array axes) at every sample; meaningful where the board is still.
     pub up: Vec<Vector3<f64>>,
-    /// The motion at every sample (at the host's instant), in the form `selfcal::model` uses.
+    /// The motion at every sample (at the host's instant, less [`Protocol::accelerometer_lag_s`]:
+    /// where the accelerometers of a package without a clock sample), in the form
+    /// `selfcal::model` uses.
     pub motion: Vec<SampleMotion>,
     /// The time derivative of the specific force at the array origin in body axes (the jerk
-    /// the sample clocks turn into output errors) at every sample's host instant, m/s^3.
+    /// the sample clocks turn into output errors) at the instants of [`Self::motion`], m/s^3.
     pub jerk_m_s3: Vec<Vector3<f64>>,
     /// The truth of every package's sample clock (index into the array's packages; `None`
     /// where the package is read at the host's instants), phases at the rotation phase's centre.
@@ -377,6 +393,16 @@ pub fn simulate<R: Rng + ?Sized>(
     protocol: &Protocol,
     rng: &mut R,
 ) -> Result<Simulated, RecordingError> {
+    let lag_s = protocol.accelerometer_lag_s;
+    if !lag_s.is_finite() || lag_s.abs() > MAX_ACCELEROMETER_LAG_SAMPLES / protocol.sample_rate_hz {
+        return Err(RecordingError::Unusable {
+            path: std::path::PathBuf::from("simulated"),
+            problem: format!(
+                "an accelerometer lag of {lag_s} s is not within {MAX_ACCELEROMETER_LAG_SAMPLES} of the {} s sample interval",
+                1.0 / protocol.sample_rate_hz
+            ),
+        });
+    }
     if protocol.is_smooth() {
         simulate_smooth(array, truth, protocol, rng)
     } else {
@@ -384,12 +410,16 @@ pub fn simulate<R: Rng + ?Sized>(
     }
 }
 
-/// The simulated table read as a recording of `array`. The simulator reads the gyroscopes at the
-/// accelerometers' instants: no lag between them (an array file's `accelerometer_lag_ms` is a
-/// real board's, not simulated).
-fn simulated_recording(table: &Table, array: &RecordingArray) -> Result<Recording, RecordingError> {
+/// The simulated table read as a recording of `array`, declaring the accelerometers' lag behind
+/// the gyroscopes the simulator generated ([`Protocol::accelerometer_lag_s`]), not the array
+/// file's (a real board's, for its real recordings).
+fn simulated_recording(
+    table: &Table,
+    array: &RecordingArray,
+    protocol: &Protocol,
+) -> Result<Recording, RecordingError> {
     let mut recording = Recording::from_table(table, array)?;
-    recording.accelerometer_lag_s = 0.0;
+    recording.accelerometer_lag_s = protocol.accelerometer_lag_s;
     Ok(recording)
 }
 
@@ -517,7 +547,7 @@ fn simulate_smooth<R: Rng + ?Sized>(
     }
     let table =
         Table { path: std::path::PathBuf::from("simulated"), first_null_row: vec![None; names.len()], names, data };
-    let recording = simulated_recording(&table, array)?;
+    let recording = simulated_recording(&table, array, protocol)?;
     let up = motions.iter().map(|m| -m.gravity_b_m_s2.normalize()).collect();
     let motion = motions
         .iter()
@@ -926,17 +956,30 @@ fn simulate_fine<R: Rng + ?Sized>(
     let mut clean_gyro = vec![vec![0.0; rows]; gyros];
     let mut motions: Vec<RigidMotion> = Vec::with_capacity(rows);
     let mut jerks: Vec<Vector3<f64>> = Vec::with_capacity(rows);
-    let mut events: Vec<(f64, usize)> = Vec::with_capacity(array.packages.len() + 1);
+    // Each reader's instant and the parts it reads there: with a lag the accelerometers read
+    // `lag` before their gyroscopes (two events), without one both at once (one event, today's).
+    const ACCELEROMETERS: u8 = 1;
+    const GYROSCOPES: u8 = 2;
+    let lag_s = protocol.accelerometer_lag_s;
+    let mut events: Vec<(f64, usize, u8)> = Vec::with_capacity(2 * (array.packages.len() + 1));
+    let push = |events: &mut Vec<(f64, usize, u8)>, te: f64, who: usize| {
+        if lag_s == 0.0 {
+            events.push((te, who, ACCELEROMETERS | GYROSCOPES));
+        } else {
+            events.push((te - lag_s, who, ACCELEROMETERS));
+            events.push((te, who, GYROSCOPES));
+        }
+    };
     for (i, &t) in lay.t_s.iter().enumerate() {
         events.clear();
-        events.push((t, HOST));
+        push(&mut events, t, HOST);
         for (p, c) in clocks.iter().enumerate() {
             if let Some(c) = c {
-                events.push((last_tick_s(c, t), p));
+                push(&mut events, last_tick_s(c, t), p);
             }
         }
         events.sort_by(|a, b| a.0.total_cmp(&b.0));
-        for &(te, who) in &events {
+        for &(te, who, parts) in &events {
             let (m, d) = hand.grid(te);
             // the filters are moved through every grid point up to the event
             if let Some((f, fm)) = filter.as_mut() {
@@ -966,17 +1009,22 @@ fn simulate_fine<R: Rng + ?Sized>(
                     *v = f.peek(j, since, *v);
                 }
             }
-            for j in 0..n {
-                if acc_owner[j] == who {
-                    clean[(i, j)] = buf[j];
+            if parts & ACCELEROMETERS != 0 {
+                for j in 0..n {
+                    if acc_owner[j] == who {
+                        clean[(i, j)] = buf[j];
+                    }
                 }
             }
-            for g in 0..gyros {
-                if gyro_owner[g] == who {
-                    clean_gyro[g][i] = buf[n + g];
+            if parts & GYROSCOPES != 0 {
+                for g in 0..gyros {
+                    if gyro_owner[g] == who {
+                        clean_gyro[g][i] = buf[n + g];
+                    }
                 }
             }
-            if who == HOST {
+            // the truth is the motion where the host's accelerometers sample
+            if who == HOST && parts & ACCELEROMETERS != 0 {
                 motions.push(k.motion);
                 jerks.push(k.jerk_m_s3);
             }
@@ -1012,7 +1060,7 @@ fn simulate_fine<R: Rng + ?Sized>(
     }
     let table =
         Table { path: std::path::PathBuf::from("simulated"), first_null_row: vec![None; names.len()], names, data };
-    let recording = simulated_recording(&table, array)?;
+    let recording = simulated_recording(&table, array, protocol)?;
     let up = motions.iter().map(|m| -m.gravity_b_m_s2.normalize()).collect();
     let motion = motions
         .iter()

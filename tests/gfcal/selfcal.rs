@@ -43,6 +43,7 @@ pub fn protocol(n: usize) -> Protocol {
         clocks: None,
         anti_alias: gfcal::selfcal::simulate::AntiAlias::default(),
         bias_drift: None,
+        accelerometer_lag_s: 0.0,
         fine_step_s: gfcal::selfcal::simulate::FINE_STEP_S,
     }
 }
