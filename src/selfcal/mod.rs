@@ -14,6 +14,7 @@
 //!   over blocks of samples (a clocked calibration's); [`huber`]: the weights that keep a clocked
 //!   rotation phase's heavy tail from leading it; [`unseen`]: what it cannot see beyond the
 //!   gauge; [`geometry`]: what an array's geometry cannot see, on synthetic data;
+//! - [`lag`]: the accelerometers' lag behind the reference gyroscopes (the rate `--use-gyro` takes);
 //! - [`misfit`]: the rotation phase's chi^2/dof, one metric for calibrate and diagnose;
 //! - [`tension`]: the static phase refitted alone, against the joint fit; [`static_drift`]: the
 //!   static phase refitted with a bias drift in time, and its test;
@@ -28,6 +29,7 @@ pub mod filter;
 pub mod fit;
 pub mod geometry;
 pub mod huber;
+pub mod lag;
 pub mod misfit;
 pub mod model;
 pub mod motion;

@@ -224,10 +224,21 @@ pub fn predict_with_state(
     };
     let static_w: Vec<f64> = stat.sigma.iter().map(|s| 1.0 / (s * s)).collect();
     let weights = dynamic_w.unwrap_or(&static_w);
-    let motion = match prepared.data.as_ref() {
+    let mut prepared = prepared;
+    let mut motion = match prepared.data.as_ref() {
         Some(d) => track::from_scratch(array, d, weights, &params),
         None => Vec::new(),
     };
+    // With the accelerometers lagging the gyroscopes, the rate refined to first order from the
+    // tracked angular acceleration and the motion tracked again (as `calibrate` refits).
+    if let (Some(d), Some(b)) = (prepared.data.as_mut(), super::calibrate::gyro_bias(rec, &seg))
+        && use_gyro
+        && rec.accelerometer_lag_s != 0.0
+        && motion.len() == prepared.index.len()
+    {
+        d.reference_rate_rad_s = Some(super::lag::rates_behind(rec, &prepared.index, &b, &motion));
+        motion = track::from_scratch(array, d, weights, &params);
+    }
     let (dyn_rms, dyn_noise, dyn_samples) = match prepared.data.as_ref() {
         Some(d) => dynamic_residual(array, &params, d, &motion, &stat.sigma),
         None => (f64::NAN, f64::NAN, 0),

@@ -67,16 +67,15 @@ fn an_array_files_lag_is_read_and_a_bad_one_refused_naming_file_and_key() {
     }
 }
 
-/// Real recording 1: with the shipped lag (1.6 ms) `--use-gyro`'s rotation-phase chi^2/dof is at
-/// least 15% below the same calibration without it (measured before this test was written, by a
-/// scan over 0-3 ms on the six recordings: 434.7 -> 346.0 at 1.7 ms on this one, 18-27% on the
-/// six, and by an independent script delaying the recording's gyroscope columns, 8-18%: it left
-/// the samples near a gyroscope's rail undelayed); gyroscope-free the calibration is the same to
-/// the last bit with and without the key.
+/// Real recording 1: with the shipped lag (1.5 ms) `--use-gyro`'s rotation-phase chi^2/dof is at
+/// least half below the same calibration without it (measured before this bound was set, by
+/// scans over 0-3 ms and 1.3-1.7 ms on the six recordings: 434.7 -> 153.7 at 1.5 ms on this one,
+/// 65%; with the gyroscopes interpolated alone, before `selfcal::lag::rates_behind`, 20%);
+/// gyroscope-free the calibration is the same to the last bit with and without the key.
 #[test]
 fn the_lag_lowers_use_gyros_misfit_and_leaves_the_gyroscope_free_fit_alone() {
     let dir = tempfile::tempdir().expect("temporary folder");
-    let lagged = load_recording_array(&with_lag(dir.path(), Some("1.6"))).expect("array");
+    let lagged = load_recording_array(&with_lag(dir.path(), Some("1.5"))).expect("array");
     let plain = load_recording_array(&with_lag(dir.path(), None)).expect("array");
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/mimu4444/recording_1.parquet");
     let gyro = CalibrateSettings { use_gyro: true, ..CalibrateSettings::default() };
@@ -87,26 +86,34 @@ fn the_lag_lowers_use_gyros_misfit_and_leaves_the_gyroscope_free_fit_alone() {
     let (with, without) = (fit(&lagged, &gyro), fit(&plain, &gyro));
     let (a, b) = (with.fit.dynamic_chi2_dof, without.fit.dynamic_chi2_dof);
     eprintln!("--use-gyro rotation-phase chi2/dof: {a:.1} with the lag, {b:.1} without");
-    assert!(a <= 0.85 * b, "with the lag {a}, without {b}");
+    assert!(a <= 0.5 * b, "with the lag {a}, without {b}");
     let (free_with, free_without) =
         (fit(&lagged, &CalibrateSettings::default()), fit(&plain, &CalibrateSettings::default()));
     assert_eq!(free_with.fit.params, free_without.fit.params, "gyroscope-free, the lag changes nothing");
 }
 
 /// The simulator generates the lag (`[protocol] accelerometer_lag_ms`): a recording of the matched
-/// protocol (clocks, vibration; 8 poses, 30 s of rotation) with the accelerometers 1.6 ms behind their gyroscopes, against
-/// the same seed without it. Expected before the generator was written
-/// (`results/mimu4444/EXPECTATIONS.md`, 2026-11-29, 14:15): `--use-gyro` with the lag declared
-/// (as the simulated recording declares it) fits within 10% of the lag-free recording's
-/// rotation-phase chi^2/dof, and at least 1.5 times worse with it not declared; the gyroscope
-/// check finds the gyroscope-free rate 1.6 ms behind the gyroscopes (within 0.2 ms); gyroscope-free
-/// no parameter moves by more than 0.1 of its sigma (a rigid body's delay).
+/// protocol (clocks, vibration; 8 poses, 30 s of rotation) with the accelerometers 1.6 ms behind
+/// their gyroscopes, against the same seed without it. The gyroscopes' 0.4 ms filter is taken off:
+/// it delays them too, so with it the accelerometers lag the gyroscopes as read by 1.2 ms, and a
+/// declared lag is that net one (`docs/real-hardware.md`). Expected before the generator was
+/// written (`results/mimu4444/EXPECTATIONS.md`, 2026-11-29, 14:15; that entry also records that
+/// the expectation failed with the filter on and the interpolated reading): `--use-gyro` with the
+/// lag declared (as the simulated recording declares it) fits within 10% of the lag-free
+/// recording's rotation-phase chi^2/dof (measured: 20.13 against 19.32; 97.5 with the
+/// gyroscopes interpolated alone, `selfcal::lag`), and at least 1.5 times worse with it not
+/// declared (226.8); the gyroscope check finds the gyroscope-free rate 1.6 ms behind the
+/// gyroscopes (within 0.2 ms; measured 1.50 ms). A third expectation, that gyroscope-free no
+/// parameter would move by more than 0.1 of its sigma, was wrong as a test: the two recordings
+/// sample the vibration at other instants, so they are not the same data (the largest move was
+/// 3.4 sigma of 168); the next test checks the generator's instants instead.
 #[test]
 fn the_simulators_lag_is_what_use_gyro_corrects_and_the_gyroscope_check_finds() {
     use gfcal::rng::trial_rng;
     use gfcal::selfcal::simulate::simulate;
     let mut cell = crate::simulate::short_matched(30.0);
     cell.protocol.poses = 8;
+    cell.protocol.anti_alias.gyro_time_constant_s = 0.0;
     let array = &cell.array;
     let truth = crate::simulate::config_truth(array, 5);
     let mut lagged_protocol = cell.protocol.clone();
@@ -135,11 +142,57 @@ fn the_simulators_lag_is_what_use_gyro_corrects_and_the_gyroscope_check_finds() 
         a.gyro_check.as_ref().expect("check").accelerometer_lag_s * 1e3
     );
     assert!((check.accelerometer_lag_s - 1.6e-3).abs() <= 0.2e-3, "{}", check.accelerometer_lag_s);
-    let (x, y) = (a.fit.params.to_vector(), b.fit.params.to_vector());
-    let worst = (0..x.len())
-        .filter(|&i| a.fit.covariance[(i, i)] > 0.0)
-        .map(|i| (x[i] - y[i]).abs() / a.fit.covariance[(i, i)].sqrt())
-        .fold(0.0, f64::max);
-    eprintln!("gyroscope-free: the largest move {worst:.3} sigma");
-    assert!(worst < 0.1, "gyroscope-free the lag moved a parameter by {worst} sigma");
+}
+
+/// The generator's instants against the sensor model (`selfcal::model`, not the simulator's
+/// `sensor::params`): on a noise-free recording with the lag and no clocks, every accelerometer
+/// output is the model's output at the truth's motion, which the simulator gives at the
+/// accelerometers' instant, `t - L` (to 1e-9 m/s^2; at the gyroscopes' instant it would be off
+/// by `L` times the jerk), and the gyroscopes read the rate `L` later: `w + L alpha` to first
+/// order, against `w` (where no gyroscope rails).
+#[test]
+fn the_simulator_reads_the_accelerometers_lag_before_the_gyroscopes() {
+    use gfcal::rng::trial_rng;
+    use gfcal::selfcal::model::sensors;
+    use gfcal::selfcal::simulate::simulate;
+    let cell = crate::simulate::short_matched(20.0);
+    let array = crate::simulate::without_clocks(&cell.array);
+    let n = array.array.len();
+    let mut p = cell.protocol.clone();
+    p.clocks = None;
+    p.vibration = gfcal::selfcal::simulate::Vibration::default();
+    p.anti_alias = gfcal::selfcal::simulate::AntiAlias::default();
+    p.noise_sigma_m_s2 = vec![0.0; n];
+    p.gyro_noise_sigma_rad_s = 0.0;
+    p.accelerometer_lag_s = 1.6e-3;
+    let truth = crate::simulate::config_truth(&array, 3);
+    let sim = simulate(&array, &truth, &p, &mut trial_rng(3, 1)).expect("simulated");
+    let sens = sensors(&array.array, &truth);
+    let rows = crate::simulate::rotation_rows(&p, &sim.recording);
+    let (mut worst, mut jerk_scale) = (0.0_f64, 0.0_f64);
+    let (mut gyro_first_order, mut gyro_own) = (0.0_f64, 0.0_f64);
+    for &i in &rows {
+        let m = &sim.motion[i];
+        for (j, s) in sens.iter().enumerate() {
+            if sim.recording.is_clipped(i, j) {
+                continue;
+            }
+            let model = s.output(&m.specific_force_m_s2(&s.position_m));
+            worst = worst.max((sim.recording.outputs[(i, j)] - model).abs());
+        }
+        jerk_scale = jerk_scale.max(sim.jerk_m_s3[i].norm() * p.accelerometer_lag_s);
+        if sim.recording.gyro_clipped[i] {
+            continue;
+        }
+        let g = sim.recording.gyro_rate_rad_s[i];
+        gyro_first_order = gyro_first_order.max((g - (m.omega_rad_s + m.alpha_rad_s2 * p.accelerometer_lag_s)).norm());
+        gyro_own = gyro_own.max((g - m.omega_rad_s).norm());
+    }
+    eprintln!(
+        "largest output error {worst:.2e} m/s^2 (L x jerk up to {jerk_scale:.3}); gyroscopes: {gyro_first_order:.4} rad/s from w + L alpha, {gyro_own:.3} from w"
+    );
+    assert!(rows.len() > 1000);
+    assert!(worst < 1e-9, "{worst}");
+    assert!(jerk_scale > 1e-3, "the test could not tell the instants apart: {jerk_scale}");
+    assert!(gyro_first_order < 0.05 * gyro_own, "{gyro_first_order} against {gyro_own}");
 }

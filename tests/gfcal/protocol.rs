@@ -78,7 +78,7 @@ fn a_protocol_run_calibrates_every_trial_and_records_the_bound_of_every_paramete
 #[test]
 fn bad_protocols_are_refused_naming_the_key() {
     let dir = tempfile::tempdir().unwrap();
-    let cases: [(&str, &str, &str); 12] = [
+    let cases: [(&str, &str, &str); 14] = [
         ("pose_up = [\n", "pose_up = [\n    [0.0, 0.0, 1.0],\n", "protocol.pose_up"),
         (
             "bias_drift_ug_per_s = { dist = \"normal\", sigma = 1.52 }",
@@ -107,6 +107,9 @@ fn bad_protocols_are_refused_naming_the_key() {
         ("form = \"tilt\"", "form = \"triad\"", "calibration.form"),
         ("[protocol]", "[schedule]\npreset = \"hung_lee_2006\"\n\n[protocol]", "protocol"),
         ("use_gyro = false", "use_gyro = false\nposes_per_face = 2", "poses_per_face"),
+        // beyond half the 16 ms sample interval, and not a number
+        ("use_gyro = false", "use_gyro = false\naccelerometer_lag_ms = 9.0", "protocol.accelerometer_lag_ms"),
+        ("use_gyro = false", "use_gyro = false\naccelerometer_lag_ms = nan", "protocol.accelerometer_lag_ms"),
     ];
     for (from, to, key) in cases {
         let config = short_protocol(dir.path(), |t| t.replace(from, to));

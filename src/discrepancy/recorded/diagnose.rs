@@ -270,6 +270,13 @@ fn diagnose_as_recorded(
     let layout = EffectLayout::new(&array.array);
     let mut prepared =
         prepare_dynamic(fitting, &calibration.segmentation, settings.use_gyro, calibration.gyro_bias_rad_s);
+    // The rate the calibration took as known (read at the accelerometers' instants where the
+    // array file declares a lag, `selfcal::lag`).
+    if let (Some(d), Some(r)) = (prepared.data.as_mut(), &calibration.reference_rate_rad_s)
+        && d.reference_rate_rad_s.as_ref().is_some_and(|own| own.len() == r.len())
+    {
+        d.reference_rate_rad_s = Some(r.clone());
+    }
     // With the packages' clocks fitted, the library is tried on the outputs corrected to the
     // packages' mean instant (what the calibration was fitted to); where the calibration used
     // Huber's weights, on the outputs within its clip (`selfcal::huber`): least squares on the
