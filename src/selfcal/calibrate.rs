@@ -222,8 +222,13 @@ pub fn calibrate(
             reference_rate_rad_s: Some(rates_behind(rec, &prepared.index, &b, &fit.motion)),
             ..d.clone()
         };
-        (fit, clocks, clock_note) = fit_phases(rec, array, &seg, &stat, Some(&behind), settings)?;
-        reference_rate_rad_s = behind.reference_rate_rad_s;
+        let refit = fit_phases(rec, array, &seg, &stat, Some(&behind), settings)?;
+        // Kept where it fits the rotation phase better: a first fit whose angular acceleration
+        // is poor (a flat subset of the board, parameters it cannot see) makes poorer rates.
+        if refit.0.dynamic_chi2_dof < fit.dynamic_chi2_dof {
+            (fit, clocks, clock_note) = refit;
+            reference_rate_rad_s = behind.reference_rate_rad_s;
+        }
     }
     let gyro_check = match (gyro_bias_rad_s, settings.use_gyro, fit.motion.is_empty()) {
         (Some(b), false, false) => Some(gyro_check(rec, &prepared.index, &fit, &b)),

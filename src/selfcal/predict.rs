@@ -236,8 +236,20 @@ pub fn predict_with_state(
         && rec.accelerometer_lag_s != 0.0
         && motion.len() == prepared.index.len()
     {
-        d.reference_rate_rad_s = Some(super::lag::rates_behind(rec, &prepared.index, &b, &motion));
-        motion = track::from_scratch(array, d, weights, &params);
+        let chi2 = |d: &DynamicData, motion: &[SampleMotion]| {
+            let (rms, _) = super::misfit::residual_rms(array, &params, d, motion);
+            super::misfit::chi2_dof(d, &rms, &stat.sigma)
+        };
+        let behind = DynamicData {
+            reference_rate_rad_s: Some(super::lag::rates_behind(rec, &prepared.index, &b, &motion)),
+            ..d.clone()
+        };
+        let again = track::from_scratch(array, &behind, weights, &params);
+        // kept where it fits better, as `calibrate` keeps its refit
+        if chi2(&behind, &again) < chi2(d, &motion) {
+            *d = behind;
+            motion = again;
+        }
     }
     let (dyn_rms, dyn_noise, dyn_samples) = match prepared.data.as_ref() {
         Some(d) => dynamic_residual(array, &params, d, &motion, &stat.sigma),
