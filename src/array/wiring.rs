@@ -69,7 +69,7 @@ pub struct RecordingArray {
     pub package_of: Vec<Option<usize>>,
     /// The column holding the time of each sample, in seconds (the array file's `time_column`).
     pub time_column: String,
-    /// How long the accelerometers sample after the reference gyroscopes, s (the array file's
+    /// How long the accelerometers lag the reference gyroscopes, s (the array file's
     /// `accelerometer_lag_ms`; 0 by default).
     pub accelerometer_lag_s: f64,
     /// The array file, for messages.

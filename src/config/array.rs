@@ -55,9 +55,9 @@
 //! Without `[[package]]` entries, the names the accelerometers give make packages without a
 //! clock. With them, every name must be declared.
 //!
-//! `accelerometer_lag_ms` (top level, default 0) says how long the accelerometers sample after the
-//! reference gyroscopes (their filters' delays differ): `--use-gyro` then reads the gyroscopes'
-//! rate that much earlier (four-point Lagrange interpolation, `selfcal::calibrate`).
+//! `accelerometer_lag_ms` (top level, default 0) says how long the accelerometers lag the reference
+//! gyroscopes (their outputs are the motion that much earlier; their filters' delays differ):
+//! `--use-gyro` then takes the rate at the accelerometers' instants (`selfcal::lag`).
 
 use std::path::Path;
 
@@ -93,8 +93,9 @@ pub struct ArrayFile {
     pub gyroscope: Vec<GyroscopeEntry>,
     #[serde(default)]
     pub package: Vec<PackageEntry>,
-    /// How long every accelerometer samples after the reference gyroscopes, ms (default 0):
-    /// `--use-gyro` reads the gyroscopes' rate this much earlier.
+    /// How long every accelerometer lags the reference gyroscopes (its output is the motion that much
+    /// earlier), ms (default 0):
+    /// `--use-gyro` takes the rate at the accelerometers' instants (`selfcal::lag`).
     pub accelerometer_lag_ms: Option<f64>,
 }
 

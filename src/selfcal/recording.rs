@@ -52,8 +52,9 @@ pub struct Recording {
     /// (least squares over the package's gyroscope axes), rad/s; empty for a package whose axes do
     /// not span three dimensions, and empty altogether unless every gyroscope names its package.
     pub package_gyro_rate_rad_s: Vec<Vec<Vector3<f64>>>,
-    /// How long the accelerometers sample after the gyroscopes, s (the array file's
-    /// `accelerometer_lag_ms`): `--use-gyro` reads the gyroscopes' rate this much earlier.
+    /// How long the accelerometers lag the gyroscopes, s (the array file's
+    /// `accelerometer_lag_ms`): `--use-gyro` takes the rate at the accelerometers' instants
+    /// (`selfcal::lag`).
     pub accelerometer_lag_s: f64,
 }
 
