@@ -934,12 +934,11 @@ fn gyro_check(rec: &Recording, index: &[usize], fit: &Fit, bias: &Vector3<f64>) 
     // same instant's.
     let at_accelerometers =
         |k: usize, i: usize| rec.gyro_rate_rad_s[i] - bias - fit.motion[k].alpha_rad_s2 * rec.accelerometer_lag_s;
-    let pairs: Vec<(Vector3<f64>, Vector3<f64>)> = index
-        .iter()
-        .enumerate()
-        .filter(|(_, i)| !rec.gyro_clipped[**i])
-        .map(|(k, &i)| (fit.motion[k].omega_rad_s, at_accelerometers(k, i)))
-        .collect();
+    // (dynamic sample, recording row) where no gyroscope clipped
+    let used: Vec<(usize, usize)> =
+        index.iter().enumerate().filter(|(_, i)| !rec.gyro_clipped[**i]).map(|(k, &i)| (k, i)).collect();
+    let pairs: Vec<(Vector3<f64>, Vector3<f64>)> =
+        used.iter().map(|&(k, i)| (fit.motion[k].omega_rad_s, at_accelerometers(k, i))).collect();
     let rms = |v: &[(Vector3<f64>, Vector3<f64>)]| {
         let d = (v.iter().map(|(a, b)| (a - b).norm_squared()).sum::<f64>() / v.len().max(1) as f64).sqrt();
         let r = (v.iter().map(|(_, b)| b.norm_squared()).sum::<f64>() / v.len().max(1) as f64).sqrt();
@@ -977,8 +976,6 @@ fn gyro_check(rec: &Recording, index: &[usize], fit: &Fit, bias: &Vector3<f64>) 
     let dt =
         if rec.t_s.len() > 1 { (rec.t_s[rec.t_s.len() - 1] - rec.t_s[0]) / (rec.t_s.len() - 1) as f64 } else { 0.0 };
     let columns: Vec<Vec<f64>> = (0..3).map(|a| rec.gyro_rate_rad_s.iter().map(|w| w[a]).collect()).collect();
-    let used: Vec<(usize, usize)> =
-        index.iter().enumerate().filter(|(_, i)| !rec.gyro_clipped[**i]).map(|(k, &i)| (k, i)).collect();
     let steps = (LAG_SEARCH_S / LAG_STEP_S).round() as i64;
     // (from the gyroscopes as recorded: the search starts at their own instants)
     let raw: Vec<(Vector3<f64>, Vector3<f64>)> =

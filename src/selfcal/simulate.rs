@@ -14,8 +14,8 @@
 //! integrated on a fine grid ([`Protocol::fine_step_s`], 0.1 ms: see [`FINE_STEP_S`]) and every part is
 //! read at its package's own instant; with all of them off the recording is today's, bit for bit
 //! (the same code, the same random draws). The accelerometers may sample a fixed time before
-//! their gyroscopes ([`Protocol::accelerometer_lag_s`], on the fine grid). A bias drift in time ([`super::drift`], off by default)
-//! is added to every accelerometer output after the motion.
+//! their gyroscopes ([`Protocol::accelerometer_lag_s`], on the fine grid). A bias drift in time
+//! ([`super::drift`], off by default) is added to every accelerometer output after the motion.
 
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord, clippy::useless_vec)]
 
@@ -80,7 +80,7 @@ pub struct Protocol {
     /// How long every accelerometer samples before its package's gyroscope, s (0: at the same
     /// instant): each accelerometer output is the motion [`Self::accelerometer_lag_s`] before the
     /// instant its gyroscope (or the host, where the package has no clock) samples. The real
-    /// board's accelerometers lag their gyroscopes by about 1.6 ms (an array file's
+    /// board's accelerometers lag their gyroscopes by about 1.5 ms (an array file's
     /// `accelerometer_lag_ms`, which `gfcal calibrate --use-gyro` corrects). Its magnitude must be
     /// below [`MAX_ACCELEROMETER_LAG_SAMPLES`] of the host's sample interval.
     pub accelerometer_lag_s: f64,
