@@ -400,6 +400,9 @@ fn icosahedron_axes() -> [Vector3<f64>; 6] {
 
 /// Width of the bins of `ln` scale (and of the quantile grid).
 const BIN: f64 = 0.004;
+/// Bins per unit of `ln` scale: the hot loops multiply by it (a division waits about four
+/// times as long as a multiplication).
+const PER_UNIT: f64 = 1.0 / BIN;
 /// The kernel `F_chi2_3(e^u)` is 0 below `u = -KERNEL_LOW` (to 1e-16) and 1 above `KERNEL_HIGH`.
 const KERNEL_LOW: f64 = 26.0;
 const KERNEL_HIGH: f64 = 4.5;
@@ -430,10 +433,41 @@ fn kernel_largest_step() -> f64 {
     })
 }
 
+/// [`kernel`] with a 0 before it and a 1 after it: `padded[i + 1]` is the kernel's point `i`,
+/// and any index clamped into it reads 0 below the kernel and 1 above it.
+fn padded_kernel() -> &'static [f64] {
+    static TABLE: std::sync::OnceLock<Vec<f64>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| std::iter::once(0.0).chain(kernel().iter().copied()).chain(std::iter::once(1.0)).collect())
+}
+
+/// `sum_k weights[k] F(base - stride k)`, `F` the kernel at a point (0 below it, 1 above it).
+/// Four partial sums, each over the `k` of one residue mod 4 in order, then added in pairs: every
+/// term is non-decreasing in `base` and rounding keeps sums of non-decreasing terms
+/// non-decreasing, so the whole is non-decreasing in `base` (the quantile's bisection needs it);
+/// the four chains of additions run side by side, where one chain waited on each addition.
+fn kernel_sum(weights: &[f64], base: i64, stride: i64) -> f64 {
+    let table = padded_kernel();
+    let top = table.len() as i64 - 1;
+    let at = |k: usize| table[(base - stride * k as i64 + 1).clamp(0, top) as usize];
+    let mut acc = [0.0; 4];
+    let chunks = weights.chunks_exact(4);
+    let rest = chunks.remainder();
+    for (c, w) in chunks.enumerate() {
+        for (r, (a, w)) in acc.iter_mut().zip(w).enumerate() {
+            *a += w * at(4 * c + r);
+        }
+    }
+    let done = weights.len() - rest.len();
+    for (r, (a, w)) in acc.iter_mut().zip(rest).enumerate() {
+        *a += w * at(done + r);
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3])
+}
+
 /// `F_chi2_3(e^u)` and its derivative in `u`, linear between the points of [`kernel`].
 fn kernel_at(u: f64) -> (f64, f64) {
     let table = kernel();
-    let x = u / BIN + (KERNEL_LOW / BIN).ceil();
+    let x = u * PER_UNIT + (KERNEL_LOW / BIN).ceil();
     if x.is_nan() {
         return (f64::NAN, 0.0);
     }
@@ -448,7 +482,7 @@ fn kernel_at(u: f64) -> (f64, f64) {
     let k = x as usize;
     let frac = x - k as f64;
     let step = table[k + 1] - table[k];
-    (table[k] + frac * step, step / BIN)
+    (table[k] + frac * step, step * PER_UNIT)
 }
 
 /// A mixture of scaled chi-square(3) variables `A chi^2_3` (the squared metric of a mixture of
@@ -540,7 +574,7 @@ impl ScaleMixture {
             return None;
         }
         let ln_a = a.ln();
-        let u = ln_a / BIN;
+        let u = ln_a * PER_UNIT;
         // The floor of `u` (finite, |u| < 2e5) by the integer conversion, which truncates.
         let t = u as i64;
         let i = if (t as f64) > u { t - 1 } else { t };
@@ -570,24 +604,8 @@ impl ScaleMixture {
 
     /// `P(chi <= e^{j BIN / 2})`, i.e. the distribution function of `t = |x|^2` at `ln t = j BIN`.
     fn cdf_at(&self, j: i64) -> f64 {
-        let table = kernel();
         let n_low = (KERNEL_LOW / BIN).ceil() as i64;
-        let mut sum = self.zero;
-        for (k, w) in self.bins.iter().enumerate() {
-            if *w == 0.0 {
-                continue;
-            }
-            let idx = j - (self.first + k as i64) + n_low;
-            let f = if idx < 0 {
-                0.0
-            } else if idx as usize >= table.len() {
-                1.0
-            } else {
-                table[idx as usize]
-            };
-            sum += w * f;
-        }
-        sum / self.total
+        (self.zero + kernel_sum(&self.bins, j - self.first + n_low, 1)) / self.total
     }
 
     /// The `p`-quantile of `|x|`.
@@ -630,23 +648,9 @@ impl ScaleMixture {
     /// below [`COARSE_SLACK`]).
     fn coarse_bracket(&self, p: f64, far_lo: i64, far_hi: i64) -> (i64, i64) {
         let coarse: Vec<f64> = self.bins.chunks(COARSE).map(|c| c.iter().sum()).collect();
-        let table = kernel();
         let n_low = (KERNEL_LOW / BIN).ceil() as i64;
         let half = (COARSE / 2) as i64;
-        let cdf = |j: i64| -> f64 {
-            let mut sum = self.zero;
-            for (k, w) in coarse.iter().enumerate() {
-                let idx = j - (self.first + (k * COARSE) as i64 + half) + n_low;
-                sum += w * if idx < 0 {
-                    0.0
-                } else if idx as usize >= table.len() {
-                    1.0
-                } else {
-                    table[idx as usize]
-                };
-            }
-            sum / self.total
-        };
+        let cdf = |j: i64| (self.zero + kernel_sum(&coarse, j - self.first - half + n_low, COARSE as i64)) / self.total;
         let error = half as f64 * kernel_largest_step() + COARSE_SLACK;
         // The last point surely below p, and the first surely at or above it.
         let (mut lo, mut hi) = (far_lo, far_hi);
