@@ -769,9 +769,14 @@ impl Context<'_> {
         }
         // The nonlinearity's probes, beside the mixture's distributions (which need only the
         // truths' Gaussians: they fill the threads while the probed truth is linearised again).
+        // Without navigation noise the probes' p95 at the last horizon is that row's own (the
+        // parameters' part is the whole): its rows are read once, by the probe stage, and the
+        // distributions' stage reads the other horizons (the same bits as reading every row there).
+        let last_rows_by_probes = settings.nonlinearity && per_truth.len() > 1 && self.noise_var == 0.0;
         let probe_stage = || {
             let mut probe_blocks = Vec::new();
             let (mut probe_component, mut truth_index, mut navigated) = (0, None, vec![]);
+            let mut last_rows: Option<Vec<RowDistribution>> = None;
             if settings.nonlinearity {
                 // Sigma points of the component at the 95th percentile of the last horizon's
                 // position variance (the tail), navigated with its own truth. The percentile is
@@ -801,7 +806,7 @@ impl Context<'_> {
                 // Per metric of the last horizon, a pair of probes along its principal direction, as far
                 // out as the mixture's p95 there (the row's own number), not the probed truth's own
                 // tail beyond it; navigated beside the probed truth's own linearisation.
-                let directions = || -> Vec<(usize, DVector<f64>, f64)> {
+                let directions = |last: Option<&Vec<RowDistribution>>| -> Vec<(usize, DVector<f64>, f64)> {
                     (0..blocks[horizons - 1].len())
                         .into_par_iter()
                         .filter_map(|m| {
@@ -810,7 +815,9 @@ impl Context<'_> {
                             // The parameters' part of the p95 (the probes move the parameters; a metric
                             // the noise dominates would put them far out).
                             let noise = self.noise_var * b.noise_unit;
-                            let p95 = if per_truth.len() == 1 {
+                            let p95 = if let Some(rows) = last {
+                                rows[m].p95
+                            } else if per_truth.len() == 1 {
                                 let part = &per_truth[0][horizons - 1][m];
                                 if part.unbounded_by.is_empty() {
                                     GaussNorm::new(&part.mean, &(part.cov - noise)).quantile(0.95)
@@ -829,11 +836,17 @@ impl Context<'_> {
                         .collect()
                 };
                 let relinearised;
-                (relinearised, (probe_blocks, navigated)) = rayon::join(
+                (relinearised, (probe_blocks, navigated, last_rows)) = rayon::join(
                     || (!single).then(|| linearisation_at(cell, x_t)),
                     || {
+                        let last: Option<Vec<RowDistribution>> = last_rows_by_probes.then(|| {
+                            (0..4)
+                                .into_par_iter()
+                                .map(|m| mixture_distribution(&per_truth, &weights, &axes, horizons - 1, m))
+                                .collect()
+                        });
                         let (mut probes, mut probe_blocks) = (Vec::new(), Vec::new());
-                        for (m, u, sigmas) in directions() {
+                        for (m, u, sigmas) in directions(last.as_ref()) {
                             for sign in [1.0, -1.0] {
                                 let dx = &u * (sign * sigmas);
                                 probes.push(Probe { truth: x_t.clone(), compensation: x_t + &dx });
@@ -841,7 +854,7 @@ impl Context<'_> {
                             }
                         }
                         let navigated = self.navigate(&probes, &probe_blocks);
-                        (probe_blocks, navigated)
+                        (probe_blocks, navigated, last)
                     },
                 );
                 // The probes' linear prediction from the probed truth's own linearisation: the
@@ -864,18 +877,22 @@ impl Context<'_> {
                     })
                 });
             }
-            (probe_blocks, probe_component, truth_index, navigated)
+            (probe_blocks, probe_component, truth_index, navigated, last_rows)
         };
         let mixture = || {
             (per_truth.len() > 1).then(|| {
-                (0..horizons)
+                let read = if last_rows_by_probes { horizons - 1 } else { horizons };
+                (0..read)
                     .into_par_iter()
                     .map(|h| (0..4).map(|m| mixture_distribution(&per_truth, &weights, &axes, h, m)).collect())
-                    .collect()
+                    .collect::<Vec<Vec<RowDistribution>>>()
             })
         };
-        let (distributions, (probe_blocks, probe_component, truth_index, navigated)) =
+        let (mut distributions, (probe_blocks, probe_component, truth_index, navigated, last_rows)) =
             rayon::join(mixture, probe_stage);
+        if let (Some(d), Some(last)) = (&mut distributions, last_rows) {
+            d.push(last);
+        }
         Ok(Prepared {
             comp: Compensation::Estimated,
             distributions,
