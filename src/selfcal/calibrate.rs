@@ -932,13 +932,12 @@ fn gyro_check(rec: &Recording, index: &[usize], fit: &Fit, bias: &Vector3<f64>) 
     // The gyroscopes at the accelerometers' instants, `accelerometer_lag_s` earlier, to first
     // order from the fitted angular acceleration (`selfcal::lag`): the rates compared are the
     // same instant's.
-    let at_accelerometers =
-        |k: usize, i: usize| rec.gyro_rate_rad_s[i] - bias - fit.motion[k].alpha_rad_s2 * rec.accelerometer_lag_s;
+    let at_accelerometers = rates_behind(rec, index, bias, &fit.motion);
     // (dynamic sample, recording row) where no gyroscope clipped
     let used: Vec<(usize, usize)> =
         index.iter().enumerate().filter(|(_, i)| !rec.gyro_clipped[**i]).map(|(k, &i)| (k, i)).collect();
     let pairs: Vec<(Vector3<f64>, Vector3<f64>)> =
-        used.iter().map(|&(k, i)| (fit.motion[k].omega_rad_s, at_accelerometers(k, i))).collect();
+        used.iter().map(|&(k, _)| (fit.motion[k].omega_rad_s, at_accelerometers[k])).collect();
     let rms = |v: &[(Vector3<f64>, Vector3<f64>)]| {
         let d = (v.iter().map(|(a, b)| (a - b).norm_squared()).sum::<f64>() / v.len().max(1) as f64).sqrt();
         let r = (v.iter().map(|(_, b)| b.norm_squared()).sum::<f64>() / v.len().max(1) as f64).sqrt();
