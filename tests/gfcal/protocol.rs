@@ -91,7 +91,7 @@ fn bad_protocols_are_refused_naming_the_key() {
             "protocol.common_bias_drift_ug_per_s.sigma",
         ),
         ("pose_s = 9.0", "pose_s = 3.0", "protocol.pose_s"),
-        ("vibration_band_hz = [2.0, 60.0]", "vibration_band_hz = [60.0, 2.0]", "protocol.vibration_band_hz"),
+        ("vibration_band_hz = [2.0, 90.0]", "vibration_band_hz = [90.0, 2.0]", "protocol.vibration_band_hz"),
         (
             "vibration_rate_band_hz = [3.0, 25.0]",
             "vibration_rate_band_hz = [3.0, 2000.0]",
