@@ -31,6 +31,9 @@
 //! vibration_low_pass_order = 3          # the translation's: 2 (default) or 3 (less jerk above the band)
 //! vibration_band_hz = [2.0, 50.0]       # its band: 1st-order high-pass, Butterworth low-pass of vibration_low_pass_order
 //! vibration_rate_exponent = 0.0         # its RMS goes as (|rate| / rate_rms_rad_s)^k (0: stationary)
+//! vibration_sensor_rms_m_s2 = 0.0       # each accelerometer's own error under the vibration, one axis
+//!                                       # (independent per accelerometer: not a rigid motion; its band,
+//!                                       # low-pass and envelope are the translation's)
 //! sample_clocks = true                  # packages with sample_clock_hz + sample_and_hold sample on their own clocks
 //! clock_rate_offset_ppm = { dist = "normal", sigma = 1300.0 }       # per package (also uniform, fixed)
 //! clock_common_rate_offset_ppm = { dist = "normal", sigma = 65.0 }  # per recording, every package
@@ -98,6 +101,7 @@ pub struct ProtocolSection {
     pub vibration_rate_rms_rad_s: Option<f64>,
     pub vibration_band_hz: Option<[f64; 2]>,
     pub vibration_rate_exponent: Option<f64>,
+    pub vibration_sensor_rms_m_s2: Option<f64>,
     pub vibration_rate_band_hz: Option<[f64; 2]>,
     pub vibration_rate_low_pass_order: Option<u32>,
     pub vibration_low_pass_order: Option<u32>,
@@ -296,6 +300,7 @@ impl ProtocolSection {
             low_pass: low_pass("protocol.vibration_low_pass_order", self.vibration_low_pass_order)?,
             rate_low_pass: low_pass("protocol.vibration_rate_low_pass_order", self.vibration_rate_low_pass_order)?,
             rate_exponent: non_negative("protocol.vibration_rate_exponent", self.vibration_rate_exponent)?,
+            sensor_rms_m_s2: non_negative("protocol.vibration_sensor_rms_m_s2", self.vibration_sensor_rms_m_s2)?,
         };
         if vibration.rate_exponent > 4.0 {
             return Err(Bad::new(

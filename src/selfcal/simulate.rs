@@ -29,7 +29,7 @@ use super::drift::{BiasDrift, BiasDriftSpread};
 use super::model::{SampleMotion, SensorSet};
 use super::recording::{Recording, RecordingError};
 use super::sampling::{ClockSpread, FirstOrder, draw_clocks, last_tick_s};
-use super::vibration::{BandNoise, Bank, LowPass, Sample};
+use super::vibration::{BandNoise, Bank, LowPass, MAX_AXES, Sample};
 use crate::array::wiring::RecordingArray;
 use crate::io::table::Table;
 use crate::motion::RigidMotion;
@@ -138,6 +138,13 @@ pub struct Vibration {
     /// intermittent (heavy-tailed: rare peaks of several times its RMS) and the clocks' error
     /// grows with the rate, as on the real board.
     pub rate_exponent: f64,
+    /// RMS of each accelerometer's own error under the vibration, one axis, m/s^2 (0: none): not
+    /// a motion of the board (which every sensor sees through one rigid body) but an independent
+    /// band-limited process per accelerometer (the translation's band, low-pass and envelope: its
+    /// RMS goes with the rotation's rate as the translation's does), added to the accelerometer's
+    /// output at its package's instant, after any anti-alias filter. A non-rigid misfit: no rigid
+    /// body and no clock model can fit it, so it weighs on the estimates as noise, not as bias.
+    pub sensor_rms_m_s2: f64,
 }
 
 /// The default band of the vibration, Hz.
@@ -153,13 +160,14 @@ impl Default for Vibration {
             low_pass: LowPass::Second,
             rate_low_pass: LowPass::Second,
             rate_exponent: 0.0,
+            sensor_rms_m_s2: 0.0,
         }
     }
 }
 
 impl Vibration {
     pub fn is_on(&self) -> bool {
-        self.accel_rms_m_s2 > 0.0 || self.rate_rms_rad_s > 0.0
+        self.accel_rms_m_s2 > 0.0 || self.rate_rms_rad_s > 0.0 || self.sensor_rms_m_s2 > 0.0
     }
 }
 
@@ -640,6 +648,9 @@ struct Spin {
     /// 3-5 when both are on; a single one uses axes 0-2; with an angular bank, its axes 0-2).
     accel_axis_rms: f64,
     rate_axis_rms: f64,
+    /// The accelerometers' own errors ([`Vibration::sensor_rms_m_s2`]): accelerometer `j` is axis
+    /// `j % MAX_AXES` of bank `j / MAX_AXES` (empty when off).
+    sensor_banks: Vec<Bank>,
 }
 
 /// The vibration's processes sampled at one instant: `bank` and `angular_bank` of [`Spin`].
@@ -756,6 +767,9 @@ impl Hand<'_> {
         if let Some(b) = self.spin.angular_bank.as_mut() {
             b.advance(rng);
         }
+        for b in &mut self.spin.sensor_banks {
+            b.advance(rng);
+        }
         self.spin.n += 1;
         self.spin.omega_n = w1;
     }
@@ -794,6 +808,27 @@ impl Hand<'_> {
         motion.accel_b_m_s2 += trans.0 * g;
         let jerk = smooth_jerk + trans.1 * g + trans.0 * dg;
         Kinematics { motion, jerk_m_s3: jerk }
+    }
+
+    /// Adds every accelerometer's own error ([`Vibration::sensor_rms_m_s2`]) at grid index `m`
+    /// plus `d` seconds to `out` (the outputs; the rotation's grid already at `m`, as
+    /// [`Self::at`] leaves it). Zero before the rotation phase.
+    fn add_sensor_errors(&self, m: i64, d: f64, out: &mut [f64]) {
+        if m < 0 || self.spin.sensor_banks.is_empty() {
+            return;
+        }
+        let tau = m as f64 * self.h + d;
+        let (e, de) = smoothstep(tau / RAMP_S);
+        let (g, _) = self.envelope(tau, e, de / RAMP_S);
+        let scale = g * self.protocol.vibration.sensor_rms_m_s2;
+        for (b, bank) in self.spin.sensor_banks.iter().enumerate() {
+            let s = bank.after(d);
+            for (k, v) in s.iter().enumerate() {
+                if let Some(o) = out.get_mut(b * MAX_AXES + k) {
+                    *o += scale * v.0;
+                }
+            }
+        }
     }
 
     /// The motion at `t = start + m h + d` (the rotation's grid, extended back over the poses).
@@ -910,6 +945,12 @@ fn simulate_fine<R: Rng + ?Sized>(
     let axes = 3 * (usize::from(accel_axis_rms > 0.0) + usize::from(shared > 0.0));
     let bank = if axes > 0 { Some(Bank::start(noise(vib.band_hz, vib.low_pass)?, axes, rng)) } else { None };
     let angular_bank = if separate { Some(Bank::start(noise(rate_band, vib.rate_low_pass)?, 3, rng)) } else { None };
+    let mut sensor_banks = Vec::new();
+    if vib.sensor_rms_m_s2 > 0.0 {
+        for first in (0..n).step_by(MAX_AXES) {
+            sensor_banks.push(Bank::start(noise(vib.band_hz, vib.low_pass)?, (n - first).min(MAX_AXES), rng));
+        }
+    }
     let turns = (0..protocol.poses.saturating_sub(1))
         .map(|p| {
             let rel = attitudes[p].inverse() * attitudes[p + 1];
@@ -927,7 +968,16 @@ fn simulate_fine<R: Rng + ?Sized>(
         g_i,
         start_s: lay.rotation_start_s,
         h,
-        spin: Spin { n: 0, q: last, omega_n: Vector3::zeros(), bank, angular_bank, accel_axis_rms, rate_axis_rms },
+        spin: Spin {
+            n: 0,
+            q: last,
+            omega_n: Vector3::zeros(),
+            bank,
+            angular_bank,
+            accel_axis_rms,
+            rate_axis_rms,
+            sensor_banks,
+        },
     };
     // Who reads each part: its package when that package has a clock, otherwise the host.
     const HOST: usize = usize::MAX;
@@ -1008,6 +1058,9 @@ fn simulate_fine<R: Rng + ?Sized>(
                 for (j, v) in buf.iter_mut().enumerate() {
                     *v = f.peek(j, since, *v);
                 }
+            }
+            if parts & ACCELEROMETERS != 0 {
+                hand.add_sensor_errors(m, d, &mut buf[..n]);
             }
             if parts & ACCELEROMETERS != 0 {
                 for j in 0..n {

@@ -8,7 +8,7 @@
 //! calibrate`, `gfcal diagnose`), whose exit code must be 0, 1 or 2 (not a signal, not 101), with
 //! a time limit.
 //!
-//! `cargo test` runs 2,000 inputs per target; CI sets `GFCAL_FUZZ_INPUTS=100000` (and
+//! `cargo test` runs 2,000 inputs per target; CI sets `GFCAL_FUZZ_INPUTS=40000` (and
 //! `GFCAL_FUZZ_PROCESS_INPUTS`) and prints the counts (`--nocapture`).
 
 use std::panic::{AssertUnwindSafe, catch_unwind};

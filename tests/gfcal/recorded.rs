@@ -129,6 +129,7 @@ pub fn real(k: usize) -> PathBuf {
 /// The real board: fitted on recording 1, scored on recordings 2-6. The criteria are those of
 /// results/mimu4444/discrepancy/EXPECTATIONS.md, written before the first run.
 #[test]
+#[ignore = "slow: about 1.7 minutes (a diagnosis of real recording 1 scored on five held-out recordings); run with --ignored (docs/testing.md)"]
 fn real_recordings_name_a_turn_on_bias_that_holds_up_on_every_held_out_recording() {
     let array = real_array();
     let fitting = Recording::read(&real(1), &array).expect("recording 1");

@@ -505,7 +505,7 @@ fn shared_recording(k: usize) -> std::path::PathBuf {
 }
 
 /// The matched protocol with overrides from `spec` ("key=value ...": vib, vrate, vband=lo,hi,
-/// rband=lo,hi (the angular vibration's band), rorder (its low-pass's order, 2 or 3), order (the translation's), k (the vibration's rate exponent), band=lo,hi, aband=lo,hi (the acceleration's), acc, rate, tau and gtau (the accelerometers'
+/// svib (each accelerometer's own error under the vibration, one axis), rband=lo,hi (the angular vibration's band), rorder (its low-pass's order, 2 or 3), order (the translation's), k (the vibration's rate exponent), band=lo,hi, aband=lo,hi (the acceleration's), acc, rate, tau and gtau (the accelerometers'
 /// and gyroscopes' anti-alias time constants, ms), clocks=0|1, dynamic, poses): the tuning aid's
 /// input.
 fn tuned_protocol(spec: &str) -> (ProtocolCell, bool) {
@@ -527,6 +527,7 @@ fn tuned_protocol(spec: &str) -> (ProtocolCell, bool) {
             "tau" => p.anti_alias.accel_time_constant_s = nums[0] * 1e-3,
             "gtau" => p.anti_alias.gyro_time_constant_s = nums[0] * 1e-3,
             "k" => p.vibration.rate_exponent = nums[0],
+            "svib" => p.vibration.sensor_rms_m_s2 = nums[0],
             "order" => {
                 p.vibration.low_pass =
                     gfcal::selfcal::vibration::LowPass::from_order(nums[0] as u32).expect("order 2 or 3")
@@ -746,6 +747,7 @@ fn fast_vibrating_protocol(n: usize, rate_hz: f64) -> Protocol {
         low_pass: gfcal::selfcal::vibration::LowPass::Second,
         rate_low_pass: gfcal::selfcal::vibration::LowPass::Third,
         rate_exponent: 1.0,
+        sensor_rms_m_s2: 0.0,
     };
     p
 }
@@ -817,6 +819,47 @@ fn with_vibration_and_no_clocks_the_generator_is_a_rigid_body() {
     assert!(worst_sym < 1e-9, "W's symmetric part is not the gyroscopes' centripetal term: {worst_sym:e}");
     assert!(alpha_rel < 1e-5, "the gyroscopes' rate does not move by W's angular acceleration: {alpha_rel:e}");
     assert!(jerk_rel < 1e-5, "f does not move by the jerk truth: {jerk_rel:e}");
+}
+
+/// Each accelerometer's own error under the vibration (`Vibration::sensor_rms_m_s2`) is not a
+/// rigid motion: with it on, stationary (no envelope), no clocks and no noise, the packages'
+/// outputs leave an affine field (exact for the rigid part, the test above) by the error alone. An
+/// independent error of RMS `s` on each of the 8 packages' 3 outputs leaves a least-squares fit of 4
+/// unknowns per component a mean square of `s^2 (8 - 4) / 8`. Over 3 s of a 2-40 Hz process
+/// (about 240 independent values per output, 24 outputs) the RMS is within 5%; 15% allowed.
+#[test]
+fn each_accelerometers_own_vibration_error_is_not_a_rigid_motion_and_has_its_rms() {
+    let array = mimu_array();
+    let n = array.array.len();
+    let mut p = fast_vibrating_protocol(n, 0.5 / FINE_STEP_S);
+    p.dynamic_s = 6.0;
+    p.vibration.rate_exponent = 0.0;
+    let sensor_rms_m_s2 = 0.5;
+    p.vibration.sensor_rms_m_s2 = sensor_rms_m_s2;
+    let sim = simulate(&array, &SensorSet::nominal(n), &p, &mut trial_rng(12, 1)).expect("simulated");
+    let rec = &sim.recording;
+    let rows = rotation_rows(&p, rec);
+    let vecs = package_vectors(&array, rec, &rows, &SensorSet::nominal(n));
+    let pos = package_positions(&array);
+    let mut ms = 0.0;
+    let mut used = 0;
+    for (r, &row) in rows.iter().enumerate() {
+        if rec.gyro_clipped[row] || (0..n).any(|j| rec.is_clipped(row, j)) {
+            continue;
+        }
+        ms += affine_field(&pos, &vecs, r).2.powi(2);
+        used += 1;
+    }
+    assert!(used > rows.len() / 2, "{used} of {} rows", rows.len());
+    let rms = (ms / used as f64 / 0.5).sqrt();
+    eprintln!("{used} rows: the error's RMS from the affine field's residual {rms:.4} m/s^2 (set {sensor_rms_m_s2})");
+    assert!((rms / sensor_rms_m_s2 - 1.0).abs() < 0.15, "{rms} against {sensor_rms_m_s2}");
+    // Off, the same protocol is a rigid body to rounding (the sensor error is all of it).
+    p.vibration.sensor_rms_m_s2 = 0.0;
+    let sim = simulate(&array, &SensorSet::nominal(n), &p, &mut trial_rng(12, 1)).expect("simulated");
+    let vecs = package_vectors(&array, &sim.recording, &rows, &SensorSet::nominal(n));
+    let worst = (0..rows.len()).map(|r| affine_field(&pos, &vecs, r).2).fold(0.0, f64::max);
+    assert!(worst < 1e-9, "{worst}");
 }
 
 /// The matched protocol shortened for a test: 4 poses of 8 s in random directions, `dynamic_s` of
@@ -1575,4 +1618,47 @@ fn print_what_the_robust_rotation_phase_changes() {
             over_sigma(&after, &|j| sigma_rms(&|f| f.1.sigma(j, p)))
         );
     }
+}
+
+/// What a setting of the simulator does to the estimates (docs/sample-clocks.md, "What the clocks
+/// leave"): per seed of `GFCAL_SIM`'s protocol (`GFCAL_SEEDS`, default 3), the rotation phase's
+/// residual RMS after the clock model and without it (m/s^2), the locations' RMS error against the
+/// truth (um, every location parameter) and their RMS z against their sigmas, and the
+/// gyroscope-free rate off the truth (%): the measures that tell a candidate for the real misfit
+/// which reproduces its size from one that also harms the estimates as much as it does.
+#[test]
+#[ignore = "tuning aid: prints what a simulator setting does to the estimates (about 20 s a seed)"]
+fn print_what_a_setting_does_to_the_estimates() {
+    let spec = std::env::var("GFCAL_SIM").unwrap_or_default();
+    let seeds: u64 = std::env::var("GFCAL_SEEDS").ok().and_then(|s| s.parse().ok()).unwrap_or(3);
+    let (cell, _) = tuned_protocol(&spec);
+    eprintln!("{spec}: {:?}", cell.protocol.vibration);
+    let settings = CalibrateSettings { remove_bias_drift: cell.remove_bias_drift, ..CalibrateSettings::default() };
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+    let mut all_err_um = Vec::new();
+    for seed in 1..=seeds {
+        let truth = config_truth(&cell.array, seed);
+        let sim = simulate(&cell.array, &truth, &cell.protocol, &mut trial_rng(seed, 1)).expect("simulated");
+        let cal = calibrate(&sim.recording, &cell.array, &settings).expect("calibrates");
+        let after: Vec<f64> = cal.fit.dynamic_residual_rms_m_s2.iter().copied().filter(|v| v.is_finite()).collect();
+        let (_, before, _) = baseline_calibration(&cell.array, &sim.recording);
+        let (mut err_um, mut z) = (Vec::new(), Vec::new());
+        for j in 0..cell.array.array.len() {
+            for p in 4..PER_ACCEL {
+                let e = cal.fit.params.get(j, p) - truth.get(j, p);
+                err_um.push(e * 1e6);
+                z.push(e / cal.fit.sigma(j, p));
+            }
+        }
+        eprintln!(
+            "seed {seed}: after the clocks {:.3} m/s^2, no clock model {:.3}; locations RMS error {:.1} um, RMS z {:.2}; rate off the truth {:.1}%",
+            rms(&after),
+            before,
+            rms(&err_um),
+            rms(&z),
+            rate_error_percent(&cal, &sim)
+        );
+        all_err_um.extend(err_um);
+    }
+    eprintln!("locations RMS error over the seeds {:.1} um", rms(&all_err_um));
 }
