@@ -532,13 +532,22 @@ fn estimate_clocks(
     let nominal: Vec<f64> = array.packages.iter().map(|p| p.sample_clock_hz.unwrap_or(1.0 / dt)).collect();
     let gyro = fit_packages(&offsets, &nominal, dt, t_ref_s, 5e-3)
         .ok_or_else(|| not("too few samples with angular acceleration to measure the gyroscopes' offsets".into()))?;
-    // The gyroscopes must show the sawtooth: the offsets' scale on the fitted ages (1 for a clean
-    // measurement of a clock read by sample-and-hold) above 0.25 and 10 sigma on every clocked
-    // package, else this recording does not resolve the clocks (or the board has no such effect)
-    // and the fit goes without them.
-    if let Some((p, g)) = gyro.iter().enumerate().find(|(p, g)| {
-        array.packages[*p].free_running() && !(g.amplitude > 10.0 * g.amplitude_sigma && g.amplitude > 0.25)
-    }) {
+    // The gyroscopes must show the sawtooth on every clocked package
+    // (`clock::OffsetFit::shows_sawtooth`), else this recording does not resolve the clocks (or the
+    // board has no such effect) and the fit goes without them. Not on a package whose clock runs
+    // so near a whole multiple of the host's rate that its sawtooth does not complete a period in
+    // the rotation phase: its age is a ramp without a wrap, whose scale the offsets cannot
+    // measure (`clock::fit_packages` holds it at the others'); it is refined alone below. At
+    // least one package must show the sawtooth.
+    let slow = |p: usize| sawtooth_periods(&gyro[p].clock, &d.t_s, dt) < 1.0;
+    if !(0..gyro.len()).any(|p| array.packages[p].free_running() && !slow(p)) {
+        return Err(not(
+            "no package's sawtooth completes a period in the rotation phase: the clocks are not resolved".into()
+        ));
+    }
+    if let Some((p, g)) =
+        gyro.iter().enumerate().find(|&(p, g)| array.packages[p].free_running() && !slow(p) && !g.shows_sawtooth())
+    {
         return Err(not(format!(
             "package {} ({}): its gyroscope's time offsets show no sawtooth of its clock (scale on the fitted ages {:.3} +- {:.3}; a clock read by sample-and-hold gives about 1)",
             p + 1,

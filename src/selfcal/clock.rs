@@ -58,6 +58,20 @@ impl SampleClock {
     }
 
     /// `d age / d (rate_offset, drift_per_s, phase_s)` at `t_s`, the wraps held.
+    /// How many of its periods the sawtooth sweeps through when read at the host's samples
+    /// `t_s` (host step `host_dt_s`): the range over the samples of its ticks less the whole
+    /// ticks of the host steps, `n(t) - round(f0 dt) (t - t_0) / dt` (drift included). Below 1
+    /// it does not complete a period: at most one of its wraps falls among the samples.
+    pub fn periods_over(&self, t_s: &[f64], host_dt_s: f64) -> f64 {
+        let Some(&t0) = t_s.first() else { return 0.0 };
+        let whole = (self.nominal_hz * host_dt_s).round();
+        let (lo, hi) = t_s.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| {
+            let x = self.ticks(t) - whole * (t - t0) / host_dt_s;
+            (lo.min(x), hi.max(x))
+        });
+        (hi - lo).max(0.0)
+    }
+
     pub fn age_partials(&self, t_s: f64) -> [f64; 3] {
         let x = t_s - self.t_ref_s;
         [x, 0.5 * x * x, 1.0]
@@ -224,6 +238,14 @@ pub struct OffsetFit {
     /// Weighted residual sum of squares and the number of offsets.
     pub cost: f64,
     pub count: usize,
+}
+
+impl OffsetFit {
+    /// Whether the offsets show the sawtooth: its scale (1 for a clean measurement of a clock
+    /// read by sample-and-hold) above 0.25 and 10 sigma.
+    pub fn shows_sawtooth(&self) -> bool {
+        self.amplitude > 10.0 * self.amplitude_sigma && self.amplitude > 0.25
+    }
 }
 
 /// The amplitude's sigma of [`linear_part`] at a clock: `sqrt(cost / (N - 2) * S1 / det)`.
@@ -496,6 +518,73 @@ pub fn refine(offsets: &Offsets, target: &[f64], start: &SampleClock, with_drift
     OffsetFit { clock, amplitude: amp, amplitude_sigma, constant_s: c0, cost, count: offsets.t_s.len() }
 }
 
+/// Gauss-Newton on `(rate offset, drift, phase)` with the sawtooth's scale and constant held at
+/// `amplitude` and `constant_s`, from ten phases a tenth of a period apart (the best kept): for a
+/// package whose sawtooth does not complete a period, whose age is a ramp without a wrap, so
+/// that a free scale and constant take up its level and leave the phase unmeasured. Held at the
+/// other packages' values, the offsets' level is the age's.
+fn refine_held(offsets: &Offsets, target: &[f64], start: &SampleClock, amplitude: f64, constant_s: f64) -> OffsetFit {
+    let cost_at = |c: &SampleClock| -> f64 {
+        offsets
+            .t_s
+            .iter()
+            .zip(&offsets.weight)
+            .zip(target)
+            .map(|((&t, &w), &y)| w * (y - amplitude * c.age_s(t) - constant_s).powi(2))
+            .sum()
+    };
+    const STARTS: usize = 10;
+    let period_s = 1.0 / start.nominal_hz;
+    let mut best: Option<(SampleClock, f64)> = None;
+    for k in 0..STARTS {
+        let mut clock = start.moved([0.0, 0.0, k as f64 * period_s / STARTS as f64]);
+        let mut cost = cost_at(&clock);
+        for _ in 0..8 {
+            let mut h = nalgebra::Matrix3::<f64>::zeros();
+            let mut g = nalgebra::Vector3::<f64>::zeros();
+            for ((&t, &w), &y) in offsets.t_s.iter().zip(&offsets.weight).zip(target) {
+                let n = clock.ticks(t);
+                let fr = n - floor(n);
+                if !(0.05..=0.95).contains(&fr) {
+                    continue;
+                }
+                let r = y - amplitude * fr / clock.nominal_hz - constant_s;
+                let row = nalgebra::Vector3::from(clock.age_partials(t)) * amplitude;
+                g += row * (w * r);
+                h += row * row.transpose() * w;
+            }
+            let Some(step) = h.cholesky().map(|ch| ch.solve(&g)) else { break };
+            let mut scale = 1.0;
+            let mut moved = false;
+            for _ in 0..6 {
+                let trial = clock.moved([step[0] * scale, step[1] * scale, step[2] * scale]);
+                let c = cost_at(&trial);
+                if c < cost {
+                    (clock, cost) = (trial, c);
+                    moved = true;
+                    break;
+                }
+                scale *= 0.5;
+            }
+            if !moved {
+                break;
+            }
+        }
+        if best.is_none_or(|(_, b)| cost < b) {
+            best = Some((clock, cost));
+        }
+    }
+    let (clock, cost) = best.unwrap_or((*start, f64::INFINITY));
+    OffsetFit {
+        clock,
+        amplitude,
+        amplitude_sigma: amplitude_sigma(offsets, target, &clock),
+        constant_s,
+        cost,
+        count: offsets.t_s.len(),
+    }
+}
+
 /// The clocks of several packages from their offsets relative to the packages' mean (as the
 /// gyroscopes measure them, or the accelerometers): each package's sawtooth found by [`search`]
 /// on its own offsets, then refined in turn against its offsets plus the others' current mean
@@ -526,6 +615,32 @@ pub fn fit_packages(
             Some(refine(o, &o.offset_s, &grid.clock, true))
         })
         .collect::<Option<Vec<_>>>()?;
+    // A package whose offsets do not show its sawtooth (its scale not significant:
+    // [`OffsetFit::shows_sawtooth`]) may be one whose clock runs within a few ppm of a whole
+    // multiple of the host's rate: its age is then a ramp without a wrap, whose level a free scale
+    // and constant take up. It is refitted with the scale and constant held at the median of the
+    // packages that show theirs ([`refine_held`]), started at a zero rate offset and their median
+    // drift, and kept if its sawtooth then does not complete a period (else its free fit stands,
+    // and the calibration's check refuses it). A slow package whose scale the offsets do show is
+    // left to its free fit: held too, it came out better on 100 s rotation phases and worse on a
+    // 30 s one (docs/sample-clocks.md, "A clock the gyroscopes cannot show").
+    let hidden: Vec<bool> = (0..p).map(|q| !fits[q].shows_sawtooth()).collect();
+    let shown: Vec<usize> = (0..p).filter(|&q| !hidden[q]).collect();
+    // The median over the packages that show their sawtooth, at the fits as they stand.
+    let held = |fits: &[OffsetFit], f: &dyn Fn(&OffsetFit) -> f64| {
+        crate::stats::median(&shown.iter().map(|&r| f(&fits[r])).collect::<Vec<_>>())
+    };
+    let holding = !shown.is_empty() && shown.len() < p;
+    let free = fits.clone();
+    if holding {
+        let (amplitude, drift_per_s) = (held(&fits, &|f| f.amplitude), held(&fits, &|f| f.clock.drift_per_s));
+        for q in (0..p).filter(|&q| hidden[q]) {
+            // a scale the offsets do not show says nothing of the rate: a clock this slow runs
+            // within a few ppm of nominal
+            fits[q].clock = SampleClock { rate_offset: 0.0, drift_per_s, ..fits[q].clock };
+            fits[q].amplitude = amplitude;
+        }
+    }
     for _sweep in 0..3 {
         for q in 0..p {
             let o = &offsets[q];
@@ -540,7 +655,17 @@ pub fn fit_packages(
                     (y + others / p as f64) * p as f64 / (p as f64 - 1.0).max(1.0)
                 })
                 .collect();
-            fits[q] = refine(o, &target, &fits[q].clock, true);
+            fits[q] = if holding && hidden[q] {
+                let (amplitude, constant_s) = (held(&fits, &|f| f.amplitude), held(&fits, &|f| f.constant_s));
+                refine_held(o, &target, &fits[q].clock, amplitude, constant_s)
+            } else {
+                refine(o, &target, &fits[q].clock, true)
+            };
+        }
+    }
+    for q in (0..p).filter(|&q| hidden[q]) {
+        if fits[q].clock.periods_over(&offsets[q].t_s, host_dt_s) >= 1.0 {
+            fits[q] = free[q];
         }
     }
     Some(fits)

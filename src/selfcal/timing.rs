@@ -729,13 +729,7 @@ impl ClockProblem {
 /// of the host steps, `n(t) - round(f0 dt) (t - t_0) / dt` (drift included). Below 1 the
 /// sawtooth does not complete a period: at most one of its wraps falls among the samples.
 pub fn sawtooth_periods(clock: &SampleClock, t_s: &[f64], host_dt_s: f64) -> f64 {
-    let Some(&t0) = t_s.first() else { return 0.0 };
-    let whole = (clock.nominal_hz * host_dt_s).round();
-    let (lo, hi) = t_s.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| {
-        let x = clock.ticks(t) - whole * (t - t0) / host_dt_s;
-        (lo.min(x), hi.max(x))
-    });
-    (hi - lo).max(0.0)
+    clock.periods_over(t_s, host_dt_s)
 }
 
 /// Clocks after an accepted step: the clocks, their misfit and their timing motion per row.
