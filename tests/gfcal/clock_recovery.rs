@@ -366,7 +366,7 @@ fn a_package_whose_sawtooth_the_gyroscopes_cannot_show_is_clocked_with_the_rest(
     let pc = cell.protocol.as_ref().expect("a [protocol] config");
     let settings = CalibrateSettings { remove_bias_drift: pc.remove_bias_drift, ..CalibrateSettings::default() };
     // trials 0 and 56 (package 6 at +2.7 and -5.0 ppm, its sawtooth's scale shown) are the open
-    // case: packages 5 and 6 still end 0.07-0.10 ms off together (docs/sample-clocks.md)
+    // case: packages 5 and 6 still end 0.07-0.11 ms off together (docs/sample-clocks.md)
     let trial = 95;
     let mut rng = trial_rng(cfg.seed, trial);
     let x = gfcal::mc::protocol::truth_in_gauge(pc, &cell.errors.sample(&cell.layout, &mut rng));
