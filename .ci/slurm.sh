@@ -6,14 +6,15 @@
 #
 #   .ci/slurm.sh CONFIG UNSHARDED_RUN_DIR PYTHON_WITH_PYARROW
 #
-# Needs root (it writes /etc/slurm/slurm.conf and starts daemons) and target/release/gfcal.
+# Needs root (it writes /etc/slurm/slurm.conf and starts daemons) and target/release/gfcal, or the
+# binary GFCAL_BIN names (.ci/run passes the test build's).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 config=$1
 unsharded=$2
 python=$3
-gfcal=${CARGO_TARGET_DIR:-$PWD/target}/release/gfcal
-test -x "$gfcal" || { echo "slurm.sh: build target/release/gfcal first" >&2; exit 2; }
+gfcal=${GFCAL_BIN:-${CARGO_TARGET_DIR:-$PWD/target}/release/gfcal}
+test -x "$gfcal" || { echo "slurm.sh: build target/release/gfcal first (or name a binary in GFCAL_BIN)" >&2; exit 2; }
 t0=$(date +%s)
 
 if ! command -v slurmctld > /dev/null || ! command -v munged > /dev/null; then

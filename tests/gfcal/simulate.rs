@@ -1292,6 +1292,39 @@ fn print_where_the_rotation_phase_residual_sits() {
     }
 }
 
+/// For `results/mimu4444/residual_repeat.py` (docs/sample-clocks.md, "What the clocks leave"):
+/// each real recording calibrated gyroscope-free as `gfcal calibrate` does, its rotation phase's
+/// residual after the clocks per sample and accelerometer written to
+/// `GFCAL_RESIDUAL_OUT/residual_K.csv` (`sample`, `accelerometer` and `package` 0-based,
+/// `residual_m_s2`, and `output_m_s2`, the recorded output before the clocks' correction):
+///
+/// ```sh
+/// GFCAL_RESIDUAL_OUT=/tmp/residuals cargo test --locked --test gfcal simulate::write_the_rotation -- --ignored
+/// python3 results/mimu4444/residual_repeat.py /tmp/residuals
+/// ```
+#[test]
+#[ignore = "real data, 6 calibrations: writes the rotation phase's residuals into GFCAL_RESIDUAL_OUT"]
+fn write_the_rotation_phase_residual_of_each_real_recording() {
+    let Ok(dir) = std::env::var("GFCAL_RESIDUAL_OUT") else {
+        eprintln!("set GFCAL_RESIDUAL_OUT to a folder");
+        return;
+    };
+    let dir = std::path::PathBuf::from(dir);
+    std::fs::create_dir_all(&dir).expect("output folder");
+    let array = mimu_array();
+    for k in 1..=6 {
+        let rec = Recording::read(&shared_recording(k), &array).expect("recording");
+        let cal = calibrate(&rec, &array, &CalibrateSettings::default()).expect("calibrates");
+        let d = prepare_dynamic(&rec, &cal.segmentation, false, cal.gyro_bias_rad_s).data.expect("a rotation phase");
+        let mut csv = String::from("sample,accelerometer,package,residual_m_s2,output_m_s2\n");
+        for (i, j, r) in rotation_residuals(&array, &rec, &cal) {
+            let package = array.package_of[j].unwrap_or(0);
+            csv.push_str(&format!("{i},{j},{package},{r:e},{:e}\n", d.outputs[(i, j)]));
+        }
+        std::fs::write(dir.join(format!("residual_{k}.csv")), csv).expect("residual csv");
+    }
+}
+
 /// Per choice of `tau^2` (the own, then each null), the shares of the squares the snap and the snap
 /// with the angular snap remove.
 type Shares = Vec<(f64, f64)>;
