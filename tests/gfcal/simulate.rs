@@ -1230,6 +1230,22 @@ fn rotation_residuals(array: &RecordingArray, rec: &Recording, cal: &Calibration
     residuals
 }
 
+/// The RMS of a rotation phase's residuals (sample, accelerometer, residual) without the 5% of
+/// samples with the largest sums of squares: the bulk that Huber's weights leave in the fit.
+fn bulk_rms_m_s2(residuals: &[(usize, usize, f64)]) -> f64 {
+    let samples = residuals.iter().map(|r| r.0 + 1).max().unwrap_or(0);
+    let mut per_sample = vec![(0.0, 0usize); samples];
+    for &(i, _, r) in residuals {
+        per_sample[i].0 += r * r;
+        per_sample[i].1 += 1;
+    }
+    per_sample.retain(|s| s.1 > 0);
+    per_sample.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let kept = &per_sample[..per_sample.len() - ((per_sample.len() as f64) * 0.05).ceil() as usize];
+    let (squares, count) = kept.iter().fold((0.0, 0usize), |(s, c), x| (s + x.0, c + x.1));
+    (squares / count as f64).sqrt()
+}
+
 /// How the rotation phase's residual of a calibration spreads over its samples: RMS, kurtosis of
 /// the outputs' residuals, the shares of the squares the worst 1% and 5% of the samples carry, the
 /// RMS without the worst 5%, and the median rate of the worst 1% against all samples'. The
@@ -1240,7 +1256,8 @@ fn residual_tail(array: &RecordingArray, rec: &Recording) -> String {
     // (sum of squares, outputs used, sample)
     let mut per_sample: Vec<(f64, usize, usize)> = Vec::new();
     let (mut m2, mut m4, mut count) = (0.0, 0.0, 0usize);
-    for (i, _, r) in rotation_residuals(array, rec, &cal) {
+    let residuals = rotation_residuals(array, rec, &cal);
+    for &(i, _, r) in &residuals {
         if per_sample.last().is_none_or(|x| x.2 != i) {
             per_sample.push((0.0, 0, i));
         }
@@ -1257,8 +1274,7 @@ fn residual_tail(array: &RecordingArray, rec: &Recording) -> String {
     let total: f64 = per_sample.iter().map(|x| x.0).sum();
     let worst = |q: f64| ((per_sample.len() as f64) * q).ceil() as usize;
     let share = |q: f64| per_sample[..worst(q)].iter().map(|x| x.0).sum::<f64>() / total;
-    let rest = &per_sample[worst(0.05)..];
-    let rest_rms = (rest.iter().map(|x| x.0).sum::<f64>() / rest.iter().map(|x| x.1).sum::<usize>() as f64).sqrt();
+    let rest_rms = bulk_rms_m_s2(&residuals);
     let rate = |v: &[(f64, usize, usize)]| median(v.iter().map(|x| cal.fit.motion[x.2].omega_rad_s.norm()).collect());
     format!(
         "RMS {:.3} m/s^2, kurtosis {:.0}, worst 1% of samples {:.1}% of the squares, worst 5% {:.1}%, RMS without the worst 5% {:.3} m/s^2; median rate of the worst 1% {:.1} rad/s (all {:.1})",
@@ -1675,19 +1691,22 @@ fn print_what_a_setting_does_to_the_estimates() {
         let cal = calibrate(&sim.recording, &cell.array, &settings).expect("calibrates");
         let after: Vec<f64> = cal.fit.dynamic_residual_rms_m_s2.iter().copied().filter(|v| v.is_finite()).collect();
         let (_, before, _) = baseline_calibration(&cell.array, &sim.recording);
-        let (mut err_um, mut z) = (Vec::new(), Vec::new());
+        let (mut err_um, mut z, mut sigma_um) = (Vec::new(), Vec::new(), Vec::new());
         for j in 0..cell.array.array.len() {
             for p in 4..PER_ACCEL {
                 let e = cal.fit.params.get(j, p) - truth.get(j, p);
                 err_um.push(e * 1e6);
                 z.push(e / cal.fit.sigma(j, p));
+                sigma_um.push(cal.fit.sigma(j, p) * 1e6);
             }
         }
         eprintln!(
-            "seed {seed}: after the clocks {:.3} m/s^2, no clock model {:.3}; locations RMS error {:.1} um, RMS z {:.2}; rate off the truth {:.1}%",
+            "seed {seed}: after the clocks {:.3} m/s^2 (bulk {:.3}), no clock model {:.3}; locations RMS error {:.1} um, RMS sigma {:.1} um, RMS z {:.2}; rate off the truth {:.1}%",
             rms(&after),
+            bulk_rms_m_s2(&rotation_residuals(&cell.array, &sim.recording, &cal)),
             before,
             rms(&err_um),
+            rms(&sigma_um),
             rms(&z),
             rate_error_percent(&cal, &sim)
         );
