@@ -34,6 +34,8 @@
 //! vibration_sensor_rms_m_s2 = 0.0       # each accelerometer's own error under the vibration, one axis
 //!                                       # (independent per accelerometer: not a rigid motion; its band,
 //!                                       # low-pass and envelope are the translation's)
+//! vibration_sensor_rate_exponent = 8.0  # that error's own k (default: vibration_rate_exponent): bursts
+//!                                       # at the fastest turns, the rigid vibration unchanged
 //! sample_clocks = true                  # packages with sample_clock_hz + sample_and_hold sample on their own clocks
 //! clock_rate_offset_ppm = { dist = "normal", sigma = 1300.0 }       # per package (also uniform, fixed)
 //! clock_common_rate_offset_ppm = { dist = "normal", sigma = 65.0 }  # per recording, every package
@@ -102,6 +104,7 @@ pub struct ProtocolSection {
     pub vibration_band_hz: Option<[f64; 2]>,
     pub vibration_rate_exponent: Option<f64>,
     pub vibration_sensor_rms_m_s2: Option<f64>,
+    pub vibration_sensor_rate_exponent: Option<f64>,
     pub vibration_rate_band_hz: Option<[f64; 2]>,
     pub vibration_rate_low_pass_order: Option<u32>,
     pub vibration_low_pass_order: Option<u32>,
@@ -301,7 +304,26 @@ impl ProtocolSection {
             rate_low_pass: low_pass("protocol.vibration_rate_low_pass_order", self.vibration_rate_low_pass_order)?,
             rate_exponent: non_negative("protocol.vibration_rate_exponent", self.vibration_rate_exponent)?,
             sensor_rms_m_s2: non_negative("protocol.vibration_sensor_rms_m_s2", self.vibration_sensor_rms_m_s2)?,
+            sensor_rate_exponent: self
+                .vibration_sensor_rate_exponent
+                .map(|k| non_negative("protocol.vibration_sensor_rate_exponent", Some(k)))
+                .transpose()?,
         };
+        if let Some(k) = vibration.sensor_rate_exponent {
+            // At twice the RMS rate the envelope is 2^k: 65,536 at 16, far past any burst wanted.
+            if k > 16.0 {
+                return Err(Bad::new(
+                    "protocol.vibration_sensor_rate_exponent",
+                    format!("must be at most 16 (the sensor error's RMS goes as the rate to this power), got {k}"),
+                ));
+            }
+            if vibration.sensor_rms_m_s2 == 0.0 {
+                return Err(Bad::new(
+                    "protocol.vibration_sensor_rate_exponent",
+                    "has no effect without protocol.vibration_sensor_rms_m_s2 above 0",
+                ));
+            }
+        }
         if vibration.rate_exponent > 4.0 {
             return Err(Bad::new(
                 "protocol.vibration_rate_exponent",

@@ -505,7 +505,7 @@ fn shared_recording(k: usize) -> std::path::PathBuf {
 }
 
 /// The matched protocol with overrides from `spec` ("key=value ...": vib, vrate, vband=lo,hi,
-/// svib (each accelerometer's own error under the vibration, one axis), rband=lo,hi (the angular vibration's band), rorder (its low-pass's order, 2 or 3), order (the translation's), k (the vibration's rate exponent), band=lo,hi, aband=lo,hi (the acceleration's), acc, rate, tau and gtau (the accelerometers'
+/// svib (each accelerometer's own error under the vibration, one axis), sk (its own rate exponent), rband=lo,hi (the angular vibration's band), rorder (its low-pass's order, 2 or 3), order (the translation's), k (the vibration's rate exponent), band=lo,hi, aband=lo,hi (the acceleration's), acc, rate, tau and gtau (the accelerometers'
 /// and gyroscopes' anti-alias time constants, ms), clocks=0|1, dynamic, poses): the tuning aid's
 /// input.
 fn tuned_protocol(spec: &str) -> (ProtocolCell, bool) {
@@ -528,6 +528,7 @@ fn tuned_protocol(spec: &str) -> (ProtocolCell, bool) {
             "gtau" => p.anti_alias.gyro_time_constant_s = nums[0] * 1e-3,
             "k" => p.vibration.rate_exponent = nums[0],
             "svib" => p.vibration.sensor_rms_m_s2 = nums[0],
+            "sk" => p.vibration.sensor_rate_exponent = Some(nums[0]),
             "order" => {
                 p.vibration.low_pass =
                     gfcal::selfcal::vibration::LowPass::from_order(nums[0] as u32).expect("order 2 or 3")
@@ -748,6 +749,7 @@ fn fast_vibrating_protocol(n: usize, rate_hz: f64) -> Protocol {
         rate_low_pass: gfcal::selfcal::vibration::LowPass::Third,
         rate_exponent: 1.0,
         sensor_rms_m_s2: 0.0,
+        sensor_rate_exponent: None,
     };
     p
 }
@@ -860,6 +862,55 @@ fn each_accelerometers_own_vibration_error_is_not_a_rigid_motion_and_has_its_rms
     let vecs = package_vectors(&array, &sim.recording, &rows, &SensorSet::nominal(n));
     let worst = (0..rows.len()).map(|r| affine_field(&pos, &vecs, r).2).fold(0.0, f64::max);
     assert!(worst < 1e-9, "{worst}");
+}
+
+/// The accelerometers' own error follows the rotation's rate to its own power
+/// (`Vibration::sensor_rate_exponent`), the rigid vibration to its own. Oracles: the envelope is
+/// `G^k` with `G` the same at a given instant for every `k`, and the error's process is drawn the
+/// same whatever `k`, so with the rigid part exactly affine (no clocks, no noise) each row's
+/// non-rigid residual at `k = 4` is its residual at `k = 2` times the ratio of that to `k = 0`'s,
+/// to rounding; an unset exponent is the rigid vibration's, bit for bit; and without the sensor
+/// error the exponent changes nothing.
+#[test]
+fn each_accelerometers_own_error_follows_the_rate_to_its_own_power() {
+    let array = mimu_array();
+    let n = array.array.len();
+    let mut p = fast_vibrating_protocol(n, 0.5 / FINE_STEP_S);
+    p.dynamic_s = 6.0;
+    p.vibration.rate_exponent = 0.0;
+    p.vibration.sensor_rms_m_s2 = 0.5;
+    let run = |p: &Protocol| simulate(&array, &SensorSet::nominal(n), p, &mut trial_rng(12, 1)).expect("simulated");
+    let rows = rotation_rows(&p, &run(&p).recording);
+    let pos = package_positions(&array);
+    // Each row's non-rigid residual, NaN where an output is clipped.
+    let residuals = |p: &Protocol| -> Vec<f64> {
+        let rec = run(p).recording;
+        let vecs = package_vectors(&array, &rec, &rows, &SensorSet::nominal(n));
+        (0..rows.len())
+            .map(|r| if (0..n).any(|j| rec.is_clipped(rows[r], j)) { f64::NAN } else { affine_field(&pos, &vecs, r).2 })
+            .collect()
+    };
+    let with = |k: Option<f64>| Protocol { vibration: Vibration { sensor_rate_exponent: k, ..p.vibration.clone() }, ..p.clone() };
+    let (r0, r2, r4) = (residuals(&with(Some(0.0))), residuals(&with(Some(2.0))), residuals(&with(Some(4.0))));
+    let mut spread = (f64::INFINITY, 0.0_f64);
+    let mut checked = 0;
+    for r in (0..rows.len()).filter(|&r| r0[r].is_finite() && r2[r].is_finite() && r4[r].is_finite()) {
+        checked += 1;
+        let g2 = r2[r] / r0[r];
+        spread = (spread.0.min(g2), spread.1.max(g2));
+        assert!((r4[r] / r0[r] - g2 * g2).abs() < 1e-6 * g2 * g2, "row {r}: {} against {}", r4[r] / r0[r], g2 * g2);
+    }
+    assert!(checked > rows.len() / 2, "{checked} of {} rows", rows.len());
+    // The envelope does move over the rows (else the check above says nothing).
+    assert!(spread.1 > 2.0 * spread.0, "G^2 over the rows {spread:?}");
+    // Unset: the rigid vibration's exponent (0 here), bit for bit.
+    assert_eq!(run(&with(None)).recording.outputs, run(&with(Some(0.0))).recording.outputs);
+    // Without the sensor error the exponent changes nothing.
+    let mut quiet = with(Some(8.0));
+    quiet.vibration.sensor_rms_m_s2 = 0.0;
+    let mut plain = p.clone();
+    plain.vibration.sensor_rms_m_s2 = 0.0;
+    assert_eq!(run(&quiet).recording.outputs, run(&plain).recording.outputs);
 }
 
 /// The matched protocol shortened for a test: 4 poses of 8 s in random directions, `dynamic_s` of
