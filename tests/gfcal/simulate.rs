@@ -890,7 +890,10 @@ fn each_accelerometers_own_error_follows_the_rate_to_its_own_power() {
             .map(|r| if (0..n).any(|j| rec.is_clipped(rows[r], j)) { f64::NAN } else { affine_field(&pos, &vecs, r).2 })
             .collect()
     };
-    let with = |k: Option<f64>| Protocol { vibration: Vibration { sensor_rate_exponent: k, ..p.vibration.clone() }, ..p.clone() };
+    let with = |k: Option<f64>| Protocol {
+        vibration: Vibration { sensor_rate_exponent: k, ..p.vibration.clone() },
+        ..p.clone()
+    };
     let (r0, r2, r4) = (residuals(&with(Some(0.0))), residuals(&with(Some(2.0))), residuals(&with(Some(4.0))));
     let mut spread = (f64::INFINITY, 0.0_f64);
     let mut checked = 0;
