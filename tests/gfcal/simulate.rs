@@ -823,6 +823,16 @@ fn with_vibration_and_no_clocks_the_generator_is_a_rigid_body() {
     assert!(jerk_rel < 1e-5, "f does not move by the jerk truth: {jerk_rel:e}");
 }
 
+/// The fast vibrating protocol over 6 s, its rigid vibration stationary (exactly affine in the
+/// packages' positions), with each accelerometer's own error of `sensor_rms_m_s2`.
+fn sensor_error_protocol(n: usize, sensor_rms_m_s2: f64) -> Protocol {
+    let mut p = fast_vibrating_protocol(n, 0.5 / FINE_STEP_S);
+    p.dynamic_s = 6.0;
+    p.vibration.rate_exponent = 0.0;
+    p.vibration.sensor_rms_m_s2 = sensor_rms_m_s2;
+    p
+}
+
 /// Each accelerometer's own error under the vibration (`Vibration::sensor_rms_m_s2`) is not a
 /// rigid motion: with it on, stationary (no envelope), no clocks and no noise, the packages'
 /// outputs leave an affine field (exact for the rigid part, the test above) by the error alone. An
@@ -833,11 +843,8 @@ fn with_vibration_and_no_clocks_the_generator_is_a_rigid_body() {
 fn each_accelerometers_own_vibration_error_is_not_a_rigid_motion_and_has_its_rms() {
     let array = mimu_array();
     let n = array.array.len();
-    let mut p = fast_vibrating_protocol(n, 0.5 / FINE_STEP_S);
-    p.dynamic_s = 6.0;
-    p.vibration.rate_exponent = 0.0;
     let sensor_rms_m_s2 = 0.5;
-    p.vibration.sensor_rms_m_s2 = sensor_rms_m_s2;
+    let mut p = sensor_error_protocol(n, sensor_rms_m_s2);
     let sim = simulate(&array, &SensorSet::nominal(n), &p, &mut trial_rng(12, 1)).expect("simulated");
     let rec = &sim.recording;
     let rows = rotation_rows(&p, rec);
@@ -875,10 +882,7 @@ fn each_accelerometers_own_vibration_error_is_not_a_rigid_motion_and_has_its_rms
 fn each_accelerometers_own_error_follows_the_rate_to_its_own_power() {
     let array = mimu_array();
     let n = array.array.len();
-    let mut p = fast_vibrating_protocol(n, 0.5 / FINE_STEP_S);
-    p.dynamic_s = 6.0;
-    p.vibration.rate_exponent = 0.0;
-    p.vibration.sensor_rms_m_s2 = 0.5;
+    let p = sensor_error_protocol(n, 0.5);
     let run = |p: &Protocol| simulate(&array, &SensorSet::nominal(n), p, &mut trial_rng(12, 1)).expect("simulated");
     let rows = rotation_rows(&p, &run(&p).recording);
     let pos = package_positions(&array);
@@ -1158,6 +1162,18 @@ fn a_bias_drift_adds_its_line_about_the_recordings_middle() {
     }
 }
 
+/// The folder an environment variable names for a writing aid, created; `None` (and a hint)
+/// where it is not set.
+fn output_folder(var: &str) -> Option<std::path::PathBuf> {
+    let Ok(dir) = std::env::var(var) else {
+        eprintln!("set {var} to a folder");
+        return None;
+    };
+    let dir = std::path::PathBuf::from(dir);
+    std::fs::create_dir_all(&dir).expect("output folder");
+    Some(dir)
+}
+
 /// For checking an estimator of the clocks by hand: writes one simulated recording of the
 /// matched protocol (configs/mimu4444_protocol.toml, full length) as `recording.csv` (the
 /// array file's columns: `t_s`, the accelerometers, the gyroscopes) and its truth as
@@ -1173,12 +1189,9 @@ fn a_bias_drift_adds_its_line_about_the_recordings_middle() {
 #[test]
 #[ignore = "writes a simulated recording and its truth into GFCAL_SIM_OUT"]
 fn write_a_simulated_recording_of_the_matched_protocol_with_its_truth() {
-    let Ok(dir) = std::env::var("GFCAL_SIM_OUT") else {
-        eprintln!("set GFCAL_SIM_OUT to a folder");
+    let Some(dir) = output_folder("GFCAL_SIM_OUT") else {
         return;
     };
-    let dir = std::path::PathBuf::from(dir);
-    std::fs::create_dir_all(&dir).expect("output folder");
     let seed: u64 = std::env::var("GFCAL_SIM_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(1);
     let cell = matched_cell();
     let array = &cell.array;
@@ -1375,12 +1388,9 @@ fn print_where_the_rotation_phase_residual_sits() {
 #[test]
 #[ignore = "real data, 6 calibrations: writes the rotation phase's residuals into GFCAL_RESIDUAL_OUT"]
 fn write_the_rotation_phase_residual_of_each_real_recording() {
-    let Ok(dir) = std::env::var("GFCAL_RESIDUAL_OUT") else {
-        eprintln!("set GFCAL_RESIDUAL_OUT to a folder");
+    let Some(dir) = output_folder("GFCAL_RESIDUAL_OUT") else {
         return;
     };
-    let dir = std::path::PathBuf::from(dir);
-    std::fs::create_dir_all(&dir).expect("output folder");
     let array = mimu_array();
     for k in 1..=6 {
         let rec = Recording::read(&shared_recording(k), &array).expect("recording");
