@@ -1313,6 +1313,21 @@ fn bulk_rms_m_s2(residuals: &[(usize, usize, f64)]) -> f64 {
     (squares / count as f64).sqrt()
 }
 
+/// The median rate (rad/s, the calibration's fitted motion) of the 1% of samples with the largest
+/// sums of squared residuals, and of every sample with a residual.
+fn worst_percent_rate_rad_s(residuals: &[(usize, usize, f64)], cal: &Calibration) -> (f64, f64) {
+    let samples = residuals.iter().map(|r| r.0 + 1).max().unwrap_or(0);
+    let mut squares = vec![None; samples];
+    for &(i, _, r) in residuals {
+        *squares[i].get_or_insert(0.0) += r * r;
+    }
+    let mut per_sample: Vec<(f64, usize)> = squares.iter().enumerate().filter_map(|(i, s)| s.map(|s| (s, i))).collect();
+    per_sample.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let worst = ((per_sample.len() as f64) * 0.01).ceil() as usize;
+    let rate = |v: &[(f64, usize)]| median(v.iter().map(|x| cal.fit.motion[x.1].omega_rad_s.norm()).collect());
+    (rate(&per_sample[..worst]), rate(&per_sample))
+}
+
 /// How the rotation phase's residual of a calibration spreads over its samples: RMS, kurtosis of
 /// the outputs' residuals, the shares of the squares the worst 1% and 5% of the samples carry, the
 /// RMS without the worst 5%, and the median rate of the worst 1% against all samples'. The
@@ -1342,7 +1357,7 @@ fn residual_tail(array: &RecordingArray, rec: &Recording) -> String {
     let worst = |q: f64| ((per_sample.len() as f64) * q).ceil() as usize;
     let share = |q: f64| per_sample[..worst(q)].iter().map(|x| x.0).sum::<f64>() / total;
     let rest_rms = bulk_rms_m_s2(&residuals);
-    let rate = |v: &[(f64, usize, usize)]| median(v.iter().map(|x| cal.fit.motion[x.2].omega_rad_s.norm()).collect());
+    let (worst_rate, all_rate) = worst_percent_rate_rad_s(&residuals, &cal);
     format!(
         "RMS {:.3} m/s^2, kurtosis {:.0}, worst 1% of samples {:.1}% of the squares, worst 5% {:.1}%, RMS without the worst 5% {:.3} m/s^2; median rate of the worst 1% {:.1} rad/s (all {:.1})",
         m2.sqrt(),
@@ -1350,8 +1365,8 @@ fn residual_tail(array: &RecordingArray, rec: &Recording) -> String {
         100.0 * share(0.01),
         100.0 * share(0.05),
         rest_rms,
-        rate(&per_sample[..worst(0.01)]),
-        rate(&per_sample)
+        worst_rate,
+        all_rate
     )
 }
 
@@ -1755,6 +1770,8 @@ fn print_what_a_setting_does_to_the_estimates() {
         let cal = calibrate(&sim.recording, &cell.array, &settings).expect("calibrates");
         let after: Vec<f64> = cal.fit.dynamic_residual_rms_m_s2.iter().copied().filter(|v| v.is_finite()).collect();
         let (_, before, _) = baseline_calibration(&cell.array, &sim.recording);
+        let residuals = rotation_residuals(&cell.array, &sim.recording, &cal);
+        let (worst_rate, all_rate) = worst_percent_rate_rad_s(&residuals, &cal);
         let (mut err_um, mut z, mut sigma_um) = (Vec::new(), Vec::new(), Vec::new());
         for j in 0..cell.array.array.len() {
             for p in 4..PER_ACCEL {
@@ -1765,9 +1782,11 @@ fn print_what_a_setting_does_to_the_estimates() {
             }
         }
         eprintln!(
-            "seed {seed}: after the clocks {:.3} m/s^2 (bulk {:.3}), no clock model {:.3}; locations RMS error {:.1} um, RMS sigma {:.1} um, RMS z {:.2}; rate off the truth {:.1}%",
+            "seed {seed}: after the clocks {:.3} m/s^2 (bulk {:.3}; worst 1% of samples at a median {:.1} rad/s, all {:.1}), no clock model {:.3}; locations RMS error {:.1} um, RMS sigma {:.1} um, RMS z {:.2}; rate off the truth {:.1}%",
             rms(&after),
-            bulk_rms_m_s2(&rotation_residuals(&cell.array, &sim.recording, &cal)),
+            bulk_rms_m_s2(&residuals),
+            worst_rate,
+            all_rate,
             before,
             rms(&err_um),
             rms(&sigma_um),
