@@ -1297,35 +1297,43 @@ fn rotation_residuals(array: &RecordingArray, rec: &Recording, cal: &Calibration
     residuals
 }
 
-/// The RMS of a rotation phase's residuals (sample, accelerometer, residual) without the 5% of
-/// samples with the largest sums of squares: the bulk that Huber's weights leave in the fit.
-fn bulk_rms_m_s2(residuals: &[(usize, usize, f64)]) -> f64 {
-    let samples = residuals.iter().map(|r| r.0 + 1).max().unwrap_or(0);
-    let mut per_sample = vec![(0.0, 0usize); samples];
+/// Each sample's sum of squared residuals, its number of residuals and its index, from a rotation
+/// phase's residuals (sample, accelerometer, residual; in the order of their samples), the largest
+/// sum first.
+fn samples_by_misfit(residuals: &[(usize, usize, f64)]) -> Vec<(f64, usize, usize)> {
+    let mut per_sample: Vec<(f64, usize, usize)> = Vec::new();
     for &(i, _, r) in residuals {
-        per_sample[i].0 += r * r;
-        per_sample[i].1 += 1;
+        if per_sample.last().is_none_or(|x| x.2 != i) {
+            per_sample.push((0.0, 0, i));
+        }
+        if let Some(last) = per_sample.last_mut() {
+            last.0 += r * r;
+            last.1 += 1;
+        }
     }
-    per_sample.retain(|s| s.1 > 0);
-    per_sample.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let kept = &per_sample[..per_sample.len() - ((per_sample.len() as f64) * 0.05).ceil() as usize];
-    let (squares, count) = kept.iter().fold((0.0, 0usize), |(s, c), x| (s + x.0, c + x.1));
-    (squares / count as f64).sqrt()
+    per_sample.sort_by(|a, b| b.0.total_cmp(&a.0));
+    per_sample
+}
+
+/// How many of `n` samples make the worst fraction `q` of them.
+fn worst_count(n: usize, q: f64) -> usize {
+    ((n as f64) * q).ceil() as usize
+}
+
+/// The RMS of a rotation phase's residuals without the 5% of samples with the largest sums of
+/// squares (`per_sample` as [`samples_by_misfit`] gives it): the bulk that Huber's weights leave in
+/// the fit.
+fn bulk_rms_m_s2(per_sample: &[(f64, usize, usize)]) -> f64 {
+    let rest = &per_sample[worst_count(per_sample.len(), 0.05)..];
+    (rest.iter().map(|x| x.0).sum::<f64>() / rest.iter().map(|x| x.1).sum::<usize>() as f64).sqrt()
 }
 
 /// The median rate (rad/s, the calibration's fitted motion) of the 1% of samples with the largest
-/// sums of squared residuals, and of every sample with a residual.
-fn worst_percent_rate_rad_s(residuals: &[(usize, usize, f64)], cal: &Calibration) -> (f64, f64) {
-    let samples = residuals.iter().map(|r| r.0 + 1).max().unwrap_or(0);
-    let mut squares = vec![None; samples];
-    for &(i, _, r) in residuals {
-        *squares[i].get_or_insert(0.0) += r * r;
-    }
-    let mut per_sample: Vec<(f64, usize)> = squares.iter().enumerate().filter_map(|(i, s)| s.map(|s| (s, i))).collect();
-    per_sample.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let worst = ((per_sample.len() as f64) * 0.01).ceil() as usize;
-    let rate = |v: &[(f64, usize)]| median(v.iter().map(|x| cal.fit.motion[x.1].omega_rad_s.norm()).collect());
-    (rate(&per_sample[..worst]), rate(&per_sample))
+/// sums of squared residuals, and of every sample with a residual (`per_sample` as
+/// [`samples_by_misfit`] gives it).
+fn worst_percent_rate_rad_s(per_sample: &[(f64, usize, usize)], cal: &Calibration) -> (f64, f64) {
+    let rate = |v: &[(f64, usize, usize)]| median(v.iter().map(|x| cal.fit.motion[x.2].omega_rad_s.norm()).collect());
+    (rate(&per_sample[..worst_count(per_sample.len(), 0.01)]), rate(per_sample))
 }
 
 /// How the rotation phase's residual of a calibration spreads over its samples: RMS, kurtosis of
@@ -1335,29 +1343,15 @@ fn worst_percent_rate_rad_s(residuals: &[(usize, usize, f64)], cal: &Calibration
 /// has them).
 fn residual_tail(array: &RecordingArray, rec: &Recording) -> String {
     let cal = calibrate(rec, array, &CalibrateSettings::default()).expect("calibrates");
-    // (sum of squares, outputs used, sample)
-    let mut per_sample: Vec<(f64, usize, usize)> = Vec::new();
-    let (mut m2, mut m4, mut count) = (0.0, 0.0, 0usize);
     let residuals = rotation_residuals(array, rec, &cal);
-    for &(i, _, r) in &residuals {
-        if per_sample.last().is_none_or(|x| x.2 != i) {
-            per_sample.push((0.0, 0, i));
-        }
-        if let Some(last) = per_sample.last_mut() {
-            last.0 += r * r;
-            last.1 += 1;
-        }
-        m2 += r * r;
-        m4 += r.powi(4);
-        count += 1;
-    }
-    let (m2, m4) = (m2 / count as f64, m4 / count as f64);
-    per_sample.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let count = residuals.len() as f64;
+    let m2 = residuals.iter().map(|x| x.2 * x.2).sum::<f64>() / count;
+    let m4 = residuals.iter().map(|x| x.2.powi(4)).sum::<f64>() / count;
+    let per_sample = samples_by_misfit(&residuals);
     let total: f64 = per_sample.iter().map(|x| x.0).sum();
-    let worst = |q: f64| ((per_sample.len() as f64) * q).ceil() as usize;
-    let share = |q: f64| per_sample[..worst(q)].iter().map(|x| x.0).sum::<f64>() / total;
-    let rest_rms = bulk_rms_m_s2(&residuals);
-    let (worst_rate, all_rate) = worst_percent_rate_rad_s(&residuals, &cal);
+    let share = |q: f64| per_sample[..worst_count(per_sample.len(), q)].iter().map(|x| x.0).sum::<f64>() / total;
+    let rest_rms = bulk_rms_m_s2(&per_sample);
+    let (worst_rate, all_rate) = worst_percent_rate_rad_s(&per_sample, &cal);
     format!(
         "RMS {:.3} m/s^2, kurtosis {:.0}, worst 1% of samples {:.1}% of the squares, worst 5% {:.1}%, RMS without the worst 5% {:.3} m/s^2; median rate of the worst 1% {:.1} rad/s (all {:.1})",
         m2.sqrt(),
@@ -1770,8 +1764,8 @@ fn print_what_a_setting_does_to_the_estimates() {
         let cal = calibrate(&sim.recording, &cell.array, &settings).expect("calibrates");
         let after: Vec<f64> = cal.fit.dynamic_residual_rms_m_s2.iter().copied().filter(|v| v.is_finite()).collect();
         let (_, before, _) = baseline_calibration(&cell.array, &sim.recording);
-        let residuals = rotation_residuals(&cell.array, &sim.recording, &cal);
-        let (worst_rate, all_rate) = worst_percent_rate_rad_s(&residuals, &cal);
+        let per_sample = samples_by_misfit(&rotation_residuals(&cell.array, &sim.recording, &cal));
+        let (worst_rate, all_rate) = worst_percent_rate_rad_s(&per_sample, &cal);
         let (mut err_um, mut z, mut sigma_um) = (Vec::new(), Vec::new(), Vec::new());
         for j in 0..cell.array.array.len() {
             for p in 4..PER_ACCEL {
@@ -1784,7 +1778,7 @@ fn print_what_a_setting_does_to_the_estimates() {
         eprintln!(
             "seed {seed}: after the clocks {:.3} m/s^2 (bulk {:.3}; worst 1% of samples at a median {:.1} rad/s, all {:.1}), no clock model {:.3}; locations RMS error {:.1} um, RMS sigma {:.1} um, RMS z {:.2}; rate off the truth {:.1}%",
             rms(&after),
-            bulk_rms_m_s2(&residuals),
+            bulk_rms_m_s2(&per_sample),
             worst_rate,
             all_rate,
             before,
