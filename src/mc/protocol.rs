@@ -36,6 +36,8 @@
 //!                                       # low-pass and envelope are the translation's)
 //! vibration_sensor_rate_exponent = 8.0  # that error's own k (default: vibration_rate_exponent): bursts
 //!                                       # at the fastest turns, the rigid vibration unchanged
+//! vibration_sensor_burst_duty = 0.05    # or that error in bursts at random times (whatever the motion):
+//! vibration_sensor_burst_s = 0.1        # the share of time on and the bursts' mean length, s (both or none)
 //! sample_clocks = true                  # packages with sample_clock_hz + sample_and_hold sample on their own clocks
 //! clock_rate_offset_ppm = { dist = "normal", sigma = 1300.0 }       # per package (also uniform, fixed)
 //! clock_common_rate_offset_ppm = { dist = "normal", sigma = 65.0 }  # per recording, every package
@@ -75,7 +77,7 @@ use crate::selfcal::drift::BiasDriftSpread;
 use crate::selfcal::model::{PER_ACCEL, SensorSet};
 use crate::selfcal::sampling::{ClockSpread, Spread};
 use crate::selfcal::simulate::{
-    AntiAlias, FINE_STEP_S, MAX_ACCELEROMETER_LAG_SAMPLES, MOTION_BAND_HZ, VIBRATION_BAND_HZ, Vibration,
+    AntiAlias, FINE_STEP_S, MAX_ACCELEROMETER_LAG_SAMPLES, MOTION_BAND_HZ, SensorBursts, VIBRATION_BAND_HZ, Vibration,
 };
 use crate::selfcal::simulate::{Protocol, bound_at_truth, drift_removal_variance_at_truth, project_to_gauge, simulate};
 use crate::selfcal::vibration::LowPass;
@@ -105,6 +107,8 @@ pub struct ProtocolSection {
     pub vibration_rate_exponent: Option<f64>,
     pub vibration_sensor_rms_m_s2: Option<f64>,
     pub vibration_sensor_rate_exponent: Option<f64>,
+    pub vibration_sensor_burst_duty: Option<f64>,
+    pub vibration_sensor_burst_s: Option<f64>,
     pub vibration_rate_band_hz: Option<[f64; 2]>,
     pub vibration_rate_low_pass_order: Option<u32>,
     pub vibration_low_pass_order: Option<u32>,
@@ -226,6 +230,32 @@ fn non_negative(key: &str, v: Option<f64>) -> Result<f64, Bad> {
     Ok(v)
 }
 
+impl ProtocolSection {
+    /// `vibration_sensor_burst_duty` and `vibration_sensor_burst_s`, given together or not at all.
+    fn sensor_bursts(&self) -> Result<Option<SensorBursts>, Bad> {
+        let (duty_key, length_key) = ("protocol.vibration_sensor_burst_duty", "protocol.vibration_sensor_burst_s");
+        match (self.vibration_sensor_burst_duty, self.vibration_sensor_burst_s) {
+            (None, None) => Ok(None),
+            (Some(_), None) => {
+                Err(Bad::new(length_key, format!("is needed with {duty_key} (the bursts' mean length, s)")))
+            }
+            (None, Some(_)) => {
+                Err(Bad::new(duty_key, format!("is needed with {length_key} (the share of time in bursts)")))
+            }
+            (Some(duty), Some(mean_s)) => {
+                let duty = finite(duty_key, duty)?;
+                if !(duty > 0.0 && duty <= 1.0) {
+                    return Err(Bad::new(
+                        duty_key,
+                        format!("must be above 0 and at most 1 (a share of time), got {duty}"),
+                    ));
+                }
+                Ok(Some(SensorBursts { duty, mean_s: positive(length_key, mean_s)? }))
+            }
+        }
+    }
+}
+
 /// A checked protocol with its recording array.
 #[derive(Debug, Clone)]
 pub struct ProtocolCell {
@@ -308,7 +338,20 @@ impl ProtocolSection {
                 .vibration_sensor_rate_exponent
                 .map(|k| non_negative("protocol.vibration_sensor_rate_exponent", Some(k)))
                 .transpose()?,
+            sensor_bursts: self.sensor_bursts()?,
         };
+        if vibration.sensor_bursts.is_some() {
+            let key = "protocol.vibration_sensor_burst_duty";
+            if vibration.sensor_rms_m_s2 == 0.0 {
+                return Err(Bad::new(key, "has no effect without protocol.vibration_sensor_rms_m_s2 above 0"));
+            }
+            if vibration.sensor_rate_exponent.is_some() {
+                return Err(Bad::new(
+                    key,
+                    "bursts at random times and protocol.vibration_sensor_rate_exponent (bursts at the fastest turns) are two envelopes of one error: give one",
+                ));
+            }
+        }
         if let Some(k) = vibration.sensor_rate_exponent {
             // At twice the RMS rate the envelope is 2^k: 65,536 at 16, far past any burst wanted.
             if k > 16.0 {

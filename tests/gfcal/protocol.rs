@@ -78,7 +78,7 @@ fn a_protocol_run_calibrates_every_trial_and_records_the_bound_of_every_paramete
 #[test]
 fn bad_protocols_are_refused_naming_the_key() {
     let dir = tempfile::tempdir().unwrap();
-    let cases: [(&str, &str, &str); 18] = [
+    let cases: [(&str, &str, &str); 25] = [
         ("pose_up = [\n", "pose_up = [\n    [0.0, 0.0, 1.0],\n", "protocol.pose_up"),
         (
             "bias_drift_ug_per_s = { dist = \"normal\", sigma = 1.52 }",
@@ -117,6 +117,41 @@ fn bad_protocols_are_refused_naming_the_key() {
             "vibration_rate_exponent = 2.0",
             "vibration_rate_exponent = 2.0\nvibration_sensor_rate_exponent = 8.0",
             "protocol.vibration_sensor_rate_exponent",
+        ),
+        (
+            "vibration_rate_exponent = 2.0",
+            "vibration_rate_exponent = 2.0\nvibration_sensor_rms_m_s2 = 0.1\nvibration_sensor_burst_duty = 0.05",
+            "protocol.vibration_sensor_burst_s",
+        ),
+        (
+            "vibration_rate_exponent = 2.0",
+            "vibration_rate_exponent = 2.0\nvibration_sensor_rms_m_s2 = 0.1\nvibration_sensor_burst_s = 0.1",
+            "protocol.vibration_sensor_burst_duty",
+        ),
+        (
+            "vibration_rate_exponent = 2.0",
+            "vibration_rate_exponent = 2.0\nvibration_sensor_rms_m_s2 = 0.1\nvibration_sensor_burst_duty = 0.0\nvibration_sensor_burst_s = 0.1",
+            "protocol.vibration_sensor_burst_duty",
+        ),
+        (
+            "vibration_rate_exponent = 2.0",
+            "vibration_rate_exponent = 2.0\nvibration_sensor_rms_m_s2 = 0.1\nvibration_sensor_burst_duty = 1.5\nvibration_sensor_burst_s = 0.1",
+            "protocol.vibration_sensor_burst_duty",
+        ),
+        (
+            "vibration_rate_exponent = 2.0",
+            "vibration_rate_exponent = 2.0\nvibration_sensor_rms_m_s2 = 0.1\nvibration_sensor_burst_duty = 0.05\nvibration_sensor_burst_s = -0.1",
+            "protocol.vibration_sensor_burst_s",
+        ),
+        (
+            "vibration_rate_exponent = 2.0",
+            "vibration_rate_exponent = 2.0\nvibration_sensor_burst_duty = 0.05\nvibration_sensor_burst_s = 0.1",
+            "protocol.vibration_sensor_burst_duty",
+        ),
+        (
+            "vibration_rate_exponent = 2.0",
+            "vibration_rate_exponent = 2.0\nvibration_sensor_rms_m_s2 = 0.1\nvibration_sensor_rate_exponent = 8.0\nvibration_sensor_burst_duty = 0.05\nvibration_sensor_burst_s = 0.1",
+            "protocol.vibration_sensor_burst_duty",
         ),
         (
             "vibration_rate_low_pass_order = 3",
