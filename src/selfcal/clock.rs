@@ -475,12 +475,7 @@ pub fn refine(offsets: &Offsets, target: &[f64], start: &SampleClock, with_drift
         let dim = if with_drift { 5 } else { 4 };
         let mut h = nalgebra::DMatrix::<f64>::zeros(dim, dim);
         let mut g = nalgebra::DVector::<f64>::zeros(dim);
-        for ((&t, &w), &y) in offsets.t_s.iter().zip(&offsets.weight).zip(target) {
-            let n = clock.ticks(t);
-            let fr = n - floor(n);
-            if !(0.05..=0.95).contains(&fr) {
-                continue;
-            }
+        for (t, w, y, fr) in away_from_wraps(offsets, target, &clock) {
             let age = fr / clock.nominal_hz;
             let p = clock.age_partials(t);
             let r = y - amp * age - c0;
@@ -498,24 +493,52 @@ pub fn refine(offsets: &Offsets, target: &[f64], start: &SampleClock, with_drift
         }
         let Some(step) = h.clone().cholesky().map(|ch| ch.solve(&g)) else { break };
         let d = if with_drift { [step[0], step[1], step[2]] } else { [step[0], 0.0, step[1]] };
-        let mut scale = 1.0;
-        let mut moved = false;
-        for _ in 0..6 {
-            let trial = clock.moved([d[0] * scale, d[1] * scale, d[2] * scale]);
-            let (a2, c2, cost2) = linear_part(offsets, target, &trial);
-            if cost2 < cost {
-                (clock, amp, c0, cost) = (trial, a2, c2, cost2);
-                moved = true;
-                break;
-            }
-            scale *= 0.5;
-        }
-        if !moved {
+        let Some((trial, cost2, (a2, c2))) = halving_step(&clock, d, cost, |c| {
+            let (a, c0, cost) = linear_part(offsets, target, c);
+            (cost, (a, c0))
+        }) else {
             break;
-        }
+        };
+        (clock, amp, c0, cost) = (trial, a2, c2, cost2);
     }
     let amplitude_sigma = amplitude_sigma(offsets, target, &clock);
     OffsetFit { clock, amplitude: amp, amplitude_sigma, constant_s: c0, cost, count: offsets.t_s.len() }
+}
+
+/// The samples of `offsets` (time, weight, target and the fraction of a period `clock` has
+/// ticked) within 5% of a period of a wrap left out: which side of the wrap they fall on is what
+/// a step of [`refine`] or [`refine_held`] may change.
+fn away_from_wraps<'a>(
+    offsets: &'a Offsets,
+    target: &'a [f64],
+    clock: &'a SampleClock,
+) -> impl Iterator<Item = (f64, f64, f64, f64)> + 'a {
+    offsets.t_s.iter().zip(&offsets.weight).zip(target).filter_map(|((&t, &w), &y)| {
+        let n = clock.ticks(t);
+        let fr = n - floor(n);
+        (0.05..=0.95).contains(&fr).then_some((t, w, y, fr))
+    })
+}
+
+/// The step search of [`refine`] and [`refine_held`]: `clock` moved by `step` (rate offset,
+/// drift, phase), halved up to five times, until `cost_of` falls below `cost`. The first such
+/// trial, its cost and what `cost_of` found beside it; `None` where none falls.
+fn halving_step<T>(
+    clock: &SampleClock,
+    step: [f64; 3],
+    cost: f64,
+    cost_of: impl Fn(&SampleClock) -> (f64, T),
+) -> Option<(SampleClock, f64, T)> {
+    let mut scale = 1.0;
+    for _ in 0..6 {
+        let trial = clock.moved([step[0] * scale, step[1] * scale, step[2] * scale]);
+        let (c, beside) = cost_of(&trial);
+        if c < cost {
+            return Some((trial, c, beside));
+        }
+        scale *= 0.5;
+    }
+    None
 }
 
 /// Gauss-Newton on `(rate offset, drift, phase)` with the sawtooth's scale and constant held at
@@ -542,33 +565,18 @@ fn refine_held(offsets: &Offsets, target: &[f64], start: &SampleClock, amplitude
         for _ in 0..8 {
             let mut h = nalgebra::Matrix3::<f64>::zeros();
             let mut g = nalgebra::Vector3::<f64>::zeros();
-            for ((&t, &w), &y) in offsets.t_s.iter().zip(&offsets.weight).zip(target) {
-                let n = clock.ticks(t);
-                let fr = n - floor(n);
-                if !(0.05..=0.95).contains(&fr) {
-                    continue;
-                }
+            for (t, w, y, fr) in away_from_wraps(offsets, target, &clock) {
                 let r = y - amplitude * fr / clock.nominal_hz - constant_s;
                 let row = nalgebra::Vector3::from(clock.age_partials(t)) * amplitude;
                 g += row * (w * r);
                 h += row * row.transpose() * w;
             }
             let Some(step) = h.cholesky().map(|ch| ch.solve(&g)) else { break };
-            let mut scale = 1.0;
-            let mut moved = false;
-            for _ in 0..6 {
-                let trial = clock.moved([step[0] * scale, step[1] * scale, step[2] * scale]);
-                let c = cost_at(&trial);
-                if c < cost {
-                    (clock, cost) = (trial, c);
-                    moved = true;
-                    break;
-                }
-                scale *= 0.5;
-            }
-            if !moved {
+            let Some((trial, c, ())) = halving_step(&clock, [step[0], step[1], step[2]], cost, |c| (cost_at(c), ()))
+            else {
                 break;
-            }
+            };
+            (clock, cost) = (trial, c);
         }
         if best.is_none_or(|(_, b)| cost < b) {
             best = Some((clock, cost));
