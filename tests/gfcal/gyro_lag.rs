@@ -111,6 +111,8 @@ fn the_lag_lowers_use_gyros_misfit_and_leaves_the_gyroscope_free_fit_alone() {
 /// (night) the declared lag leaves 83.9 against 33.5 (undeclared 285.4), not explained yet (a
 /// likely reason, not checked: the rate at the accelerometers' instants comes from the fitted
 /// angular acceleration, which the faster vibration may make noisier; docs/real-hardware.md).
+/// Likewise without the config's sensor error in bursts (since 2026-11-30): with it the check reads
+/// 1.40 ms (the chi^2/dof 204.5, 215.1 declared, 420.7 undeclared: the ratios still met).
 #[test]
 fn the_simulators_lag_is_what_use_gyro_corrects_and_the_gyroscope_check_finds() {
     use gfcal::rng::trial_rng;
@@ -119,6 +121,8 @@ fn the_simulators_lag_is_what_use_gyro_corrects_and_the_gyroscope_check_finds() 
     cell.protocol.poses = 8;
     cell.protocol.anti_alias.gyro_time_constant_s = 0.0;
     cell.protocol.vibration.band_hz = [2.0, 60.0];
+    cell.protocol.vibration.sensor_rms_m_s2 = 0.0;
+    cell.protocol.vibration.sensor_bursts = None;
     let array = &cell.array;
     let truth = crate::simulate::config_truth(array, 5);
     let mut lagged_protocol = cell.protocol.clone();
