@@ -887,8 +887,15 @@ impl Hand<'_> {
             }
         };
         let scale = g * vibration.sensor_rms_m_s2;
+        if scale == 0.0 {
+            // Between bursts: nothing to add (and no process to evaluate).
+            return;
+        }
+        // The banks are one process (the translation's band and low-pass), so they share the
+        // transition over `d`.
+        let transition = self.spin.sensor_banks[0].transition_over(d);
         for (b, bank) in self.spin.sensor_banks.iter().enumerate() {
-            let s = bank.after(d);
+            let s = bank.after_with(transition.as_ref());
             for (k, v) in s.iter().enumerate() {
                 if let Some(o) = out.get_mut(b * MAX_AXES + k) {
                     *o += scale * v.0;

@@ -255,11 +255,22 @@ impl Bank {
 
     /// Every axis `d` seconds after the current grid point, `0 <= d <= h`.
     pub fn after(&self, d: f64) -> Sample {
-        if d <= 0.0 {
-            return self.now();
+        self.after_with(self.transition_over(d).as_ref())
+    }
+
+    /// The exact transition of this bank's process over `d` seconds (`None` at `d <= 0`), for
+    /// [`Self::after_with`]: banks of one process share it, and it is a matrix exponential.
+    pub fn transition_over(&self, d: f64) -> Option<(Matrix4<f64>, Vector4<f64>)> {
+        (d > 0.0).then(|| transition(&self.noise.a, &self.noise.b, d))
+    }
+
+    /// [`Self::after`] with its transition given ([`Self::transition_over`] of a bank of the same
+    /// process).
+    pub fn after_with(&self, transition: Option<&(Matrix4<f64>, Vector4<f64>)>) -> Sample {
+        match transition {
+            Some((phi, gamma)) => self.evaluate(phi, gamma),
+            None => self.now(),
         }
-        let (phi, gamma) = transition(&self.noise.a, &self.noise.b, d);
-        self.evaluate(&phi, &gamma)
     }
 }
 
