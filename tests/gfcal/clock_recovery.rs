@@ -46,8 +46,9 @@ fn age_difference_s(a: &SampleClock, b: &SampleClock, t_s: f64) -> f64 {
 /// (`GFCAL_CLOCK_MC_FIRST_SEED=8 GFCAL_CLOCK_MC_SEEDS=8` runs seed 8 alone; `GFCAL_CLOCK_MC_NO_DRIFT=1`
 /// leaves the protocol's bias drift in time out of the simulation, a knock-out. The recordings are
 /// calibrated as `gfcal calibrate` does, the drift taken out first (`remove_bias_drift`, as the
-/// protocol config sets it); `GFCAL_CLOCK_MC_KEEP_DRIFT=1` calibrates them as they are. Printed
-/// beside the clocks: the scale factors' and tilts' RMS z.)
+/// protocol config sets it); `GFCAL_CLOCK_MC_KEEP_DRIFT=1` calibrates them as they are;
+/// `GFCAL_CLOCK_MC_NO_SENSOR=1` leaves out each accelerometer's own error in bursts, another knock-out.
+/// Printed beside the clocks: the scale factors' and tilts' RMS z, error and printed sigma.)
 #[test]
 #[ignore = "Monte Carlo over simulated recordings of the full matched protocol (about a minute each)"]
 fn simulated_clocks_and_locations_are_recovered_within_their_sigmas() {
@@ -58,12 +59,19 @@ fn simulated_clocks_and_locations_are_recovered_within_their_sigmas() {
     if std::env::var("GFCAL_CLOCK_MC_NO_DRIFT").is_ok_and(|v| v == "1") {
         cell.protocol.bias_drift = None;
     }
+    if std::env::var("GFCAL_CLOCK_MC_NO_SENSOR").is_ok_and(|v| v == "1") {
+        cell.protocol.vibration.sensor_rms_m_s2 = 0.0;
+    }
     assert!(cell.remove_bias_drift, "the protocol config calibrates as gfcal calibrate does");
     let settings = CalibrateSettings {
         remove_bias_drift: !std::env::var("GFCAL_CLOCK_MC_KEEP_DRIFT").is_ok_and(|v| v == "1"),
         ..CalibrateSettings::default()
     };
     let mut z_intrinsic = [Vec::new(), Vec::new(), Vec::new()];
+    // Their errors and printed sigmas apart (RMS over the seeds), to tell a sigma that shrinks from
+    // an error that grows.
+    let (mut err_intrinsic, mut sigma_intrinsic) =
+        ([Vec::new(), Vec::new(), Vec::new()], [Vec::new(), Vec::new(), Vec::new()]);
     let array = &cell.array;
     let n = array.array.len();
     let (mut z_rate, mut z_relative, mut z_drift, mut z_phase, mut z_location) =
@@ -118,6 +126,8 @@ fn simulated_clocks_and_locations_are_recovered_within_their_sigmas() {
             }
             for (k, p) in [0, 2, 3].into_iter().enumerate() {
                 z_intrinsic[k].push(z(cal.fit.params.get(j, p), truth.get(j, p), cal.fit.sigma(j, p)));
+                err_intrinsic[k].push(cal.fit.params.get(j, p) - truth.get(j, p));
+                sigma_intrinsic[k].push(cal.fit.sigma(j, p));
             }
         }
         for (k, &i) in cal.dynamic_index.iter().enumerate() {
@@ -153,10 +163,16 @@ fn simulated_clocks_and_locations_are_recovered_within_their_sigmas() {
         birge.iter().map(|b| format!("{b:.2}")).collect::<Vec<_>>()
     );
     eprintln!(
-        "scale factors RMS z {:.3}, tilt_u {:.3}, tilt_w {:.3} (not asserted)",
+        "scale factors RMS z {:.3}, tilt_u {:.3}, tilt_w {:.3} (not asserted); RMS error {:.3e}, {:.3e}, {:.3e}; RMS printed sigma {:.3e}, {:.3e}, {:.3e}",
         rms(&z_intrinsic[0]),
         rms(&z_intrinsic[1]),
-        rms(&z_intrinsic[2])
+        rms(&z_intrinsic[2]),
+        rms(&err_intrinsic[0]),
+        rms(&err_intrinsic[1]),
+        rms(&err_intrinsic[2]),
+        rms(&sigma_intrinsic[0]),
+        rms(&sigma_intrinsic[1]),
+        rms(&sigma_intrinsic[2])
     );
     assert!(unfitted.is_empty(), "seeds whose clocks were not fitted: {unfitted:?}");
     assert!((rms(&z_rate) - 1.0).abs() < 0.15, "rate offsets: RMS z {}", rms(&z_rate));
