@@ -863,7 +863,6 @@ pub const OUTER_TOLERANCE: f64 = 0.01;
 /// with a p-value down to `1 / (NULL_SHIFTS + 1)` = 0.01.
 pub const NULL_SHIFTS: usize = 99;
 
-/// The RMS over accelerometers of a fit's dynamic residual RMS.
 /// Why a clock model is not used that leaves the rotation phase's misfit at `after` (m/s^2 RMS),
 /// not below `before` (without it); `when` says at which refit, or nothing for the final fit.
 fn worse_with_clocks(before: f64, after: f64, when: &str) -> String {
@@ -872,6 +871,7 @@ fn worse_with_clocks(before: f64, after: f64, when: &str) -> String {
     )
 }
 
+/// The RMS over accelerometers of a fit's dynamic residual RMS.
 fn dynamic_rms(fit: &Fit) -> f64 {
     let v: Vec<f64> = fit.dynamic_residual_rms_m_s2.iter().copied().filter(|v| v.is_finite()).collect();
     (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
