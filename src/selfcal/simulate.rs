@@ -700,9 +700,9 @@ struct Spin {
     /// The accelerometers' own errors ([`Vibration::sensor_rms_m_s2`]): accelerometer `j` is axis
     /// `j % MAX_AXES` of bank `j / MAX_AXES` (empty when off).
     sensor_banks: Vec<Bank>,
-    /// Where [`Vibration::sensor_bursts`] is set, the bursts' intervals in the rotation phase's
-    /// time (s, in order).
-    sensor_bursts_s: Option<Vec<(f64, f64)>>,
+    /// Where [`Vibration::sensor_bursts`] is set, the root of its duty and the bursts' intervals
+    /// in the rotation phase's time (s, in order).
+    sensor_bursts_s: Option<(f64, Vec<(f64, f64)>)>,
 }
 
 /// The vibration's processes sampled at one instant: `bank` and `angular_bank` of [`Spin`].
@@ -876,12 +876,12 @@ impl Hand<'_> {
         let tau = m as f64 * self.h + d;
         let (e, de) = smoothstep(tau / RAMP_S);
         let vibration = &self.protocol.vibration;
-        let g = match (&self.spin.sensor_bursts_s, vibration.sensor_bursts) {
-            (Some(on), Some(b)) => {
+        let g = match &self.spin.sensor_bursts_s {
+            Some((root_duty, on)) => {
                 let k = on.partition_point(|iv| iv.1 <= tau);
-                if on.get(k).is_some_and(|iv| iv.0 <= tau) { e / b.duty.sqrt() } else { 0.0 }
+                if on.get(k).is_some_and(|iv| iv.0 <= tau) { e / root_duty } else { 0.0 }
             }
-            _ => {
+            None => {
                 let k = vibration.sensor_rate_exponent.unwrap_or(vibration.rate_exponent);
                 self.envelope_with(k, tau, e, de / RAMP_S).0
             }
@@ -1025,8 +1025,10 @@ fn simulate_fine<R: Rng + ?Sized>(
         }
     }
     // Drawn last, and only when set, so that the draws above stay as they were without it.
-    let sensor_bursts_s =
-        vib.sensor_bursts.filter(|_| vib.sensor_rms_m_s2 > 0.0).map(|b| b.intervals(protocol.dynamic_s + RAMP_S, rng));
+    let sensor_bursts_s = vib
+        .sensor_bursts
+        .filter(|_| vib.sensor_rms_m_s2 > 0.0)
+        .map(|b| (b.duty.sqrt(), b.intervals(protocol.dynamic_s + RAMP_S, rng)));
     let turns = (0..protocol.poses.saturating_sub(1))
         .map(|p| {
             let rel = attitudes[p].inverse() * attitudes[p + 1];
