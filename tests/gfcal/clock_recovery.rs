@@ -76,6 +76,7 @@ fn age_difference_s(a: &SampleClock, b: &SampleClock, t_s: f64) -> f64 {
 /// protocol config sets it); `GFCAL_CLOCK_MC_KEEP_DRIFT=1` calibrates them as they are;
 /// `GFCAL_CLOCK_MC_NO_SENSOR=1` leaves out each accelerometer's own error in bursts, another knock-out,
 /// but not a paired one: its generators' draws leave the random stream, so every later draw differs.
+/// `GFCAL_CLOCK_MC_PLAIN=1` calibrates by plain least squares (no Huber's weights).
 /// Paired knock-outs keep every draw and scale the error: `GFCAL_CLOCK_MC_SENSOR_SCALE=1e-6` the
 /// accelerometers' own error, `GFCAL_CLOCK_MC_VIB_SCALE=0.5` that and the rigid vibration together.
 /// Printed beside the clocks: the scale factors', tilts' and locations' RMS z, error and printed
@@ -106,6 +107,7 @@ fn simulated_clocks_and_locations_are_recovered_within_their_sigmas() {
     assert!(cell.remove_bias_drift, "the protocol config calibrates as gfcal calibrate does");
     let settings = CalibrateSettings {
         remove_bias_drift: !std::env::var("GFCAL_CLOCK_MC_KEEP_DRIFT").is_ok_and(|v| v == "1"),
+        plain_least_squares: std::env::var("GFCAL_CLOCK_MC_PLAIN").is_ok_and(|v| v == "1"),
         ..CalibrateSettings::default()
     };
     let mut z_intrinsic = [Vec::new(), Vec::new(), Vec::new()];
