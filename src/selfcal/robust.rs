@@ -29,6 +29,44 @@ use crate::array::Array;
 /// 0.5-0.75), and about 375 blocks in a 100 s rotation phase.
 pub const BLOCK_SAMPLES: usize = 16;
 
+/// A fit's information at its solution with `weights`: the whole and the static phase's alone,
+/// with the gauge's constraints (what [`robust_covariance`] and `selfcal::timing_information`
+/// invert).
+pub(super) struct AtSolution {
+    pub normal: DMatrix<f64>,
+    pub static_normal: DMatrix<f64>,
+    pub constraints: DMatrix<f64>,
+    pub active: Vec<bool>,
+}
+
+impl AtSolution {
+    /// The constrained inverse of `information` (the fit's unseen parameters NaN).
+    pub fn inverse(&self, information: &DMatrix<f64>, fit: &Fit) -> Result<DMatrix<f64>, FitError> {
+        constrained_inverse(information, &self.constraints, &self.active, &fit.unseen_parameters, true)
+    }
+}
+
+/// The information at `fit`'s solution (its covariance to about 1e-6 of a sigma with its stored
+/// weights: the weights go through the stored sigmas).
+pub(super) fn at_solution(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: &DynamicData,
+    weights: &Weights,
+    settings: &FitSettings,
+    fit: &Fit,
+) -> AtSolution {
+    let poses = stat.means.nrows();
+    let active = vec![true; PER_ACCEL * array.len() + 2 * poses];
+    let state = State { params: fit.params.clone(), up: fit.up.clone(), motion: fit.motion.clone() };
+    let normal = normal_equations(array, stat, Some(dynamic), settings, weights, &state, &active);
+    let static_normal = normal_equations(array, stat, None, settings, weights, &state, &active);
+    let gauge = fit.gauge.constraints(array, true, 2 * poses);
+    let seen = unseen(&normal.h, &gauge, &active);
+    let (constraints, _) = pinned(&gauge, &seen, &state);
+    AtSolution { normal: normal.h, static_normal: static_normal.h, constraints, active }
+}
+
 /// The robust covariance of `fit` (module docs), in the fit's gauge and with its unseen
 /// parameters NaN, as `Fit::covariance`. `dynamic`: the data the fit was fitted to.
 pub fn robust_covariance(
@@ -55,21 +93,12 @@ pub fn robust_covariance_with_bread(
 ) -> Result<DMatrix<f64>, FitError> {
     let n = array.len();
     let na = PER_ACCEL * n;
-    let poses = stat.means.nrows();
-    let dim = na + 2 * poses;
-    let active = vec![true; dim];
     // The bread's factors weigh the dynamic information only; the scores below take the plain
     // weights (`output_w: None`).
     let weights = Weights { dynamic_output_w: bread.map(<[f64]>::to_vec), ..Weights::stored_in(fit, stat) };
-    let state = State { params: fit.params.clone(), up: fit.up.clone(), motion: fit.motion.clone() };
-    // K from the information at the fit's solution with its stored weights (the fit's own
-    // covariance to about 1e-6 of a sigma: the weights go through the stored sigmas).
-    let normal = normal_equations(array, stat, Some(dynamic), settings, &weights, &state, &active);
-    let static_normal = normal_equations(array, stat, None, settings, &weights, &state, &active);
-    let gauge = fit.gauge.constraints(array, true, 2 * poses);
-    let seen = unseen(&normal.h, &gauge, &active);
-    let (constraints, _) = pinned(&gauge, &seen, &state);
-    let k = constrained_inverse(&normal.h, &constraints, &active, &fit.unseen_parameters, true)?;
+    let at = at_solution(array, stat, dynamic, &weights, settings, fit);
+    let dim = at.active.len();
+    let k = at.inverse(&at.normal, fit)?;
     // The dynamic scores, block by block (each block's sum in order: the same bits on any
     // number of threads).
     let sens = sensors(array, &fit.params);
@@ -93,7 +122,7 @@ pub fn robust_covariance_with_bread(
             g
         })
         .collect();
-    let mut meat = static_normal.h;
+    let mut meat = at.static_normal;
     {
         let mut top = meat.view_mut((0, 0), (na, na));
         for s in &scores {
