@@ -83,6 +83,12 @@ pub fn reduced_dynamic_information(
             for (c, v) in row.iter().enumerate() {
                 g[(j, PER_ACCEL * j + c)] = *v;
             }
+            // `G^T W G`: each output touches its own accelerometer's block only.
+            for (r, a) in row.iter().enumerate() {
+                for (c, b) in row.iter().enumerate() {
+                    h[(PER_ACCEL * j + r, PER_ACCEL * j + c)] += weights[j] * a * b;
+                }
+            }
         }
         let lw = DMatrix::from_fn(local, n, |r, c| l[(c, r)] * w[c]);
         let b = &lw * &l;
@@ -92,8 +98,7 @@ pub fn reduced_dynamic_information(
         }
         let Ok(b_inv) = b.pseudo_inverse(1e-12 * largest) else { continue };
         let a = &lw * &g;
-        let gw = DMatrix::from_fn(na, n, |r, c| g[(c, r)] * w[c]);
-        h += &gw * &g - a.transpose() * b_inv * a;
+        h -= a.transpose() * b_inv * a;
     }
     h
 }
