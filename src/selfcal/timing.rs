@@ -122,12 +122,14 @@ pub fn host_dt_s(t_s: &[f64]) -> Option<f64> {
 /// the clocks of the packages and the package of each accelerometer.
 pub fn accelerometer_ages(d: &DynamicData, clocks: &[Option<SampleClock>], package_of: &[usize]) -> DMatrix<f64> {
     let mut tau = vec![0.0; clocks.len()];
-    DMatrix::from_fn(d.samples(), package_of.len(), |i, j| {
-        if j == 0 {
-            relative_ages(clocks, d.t_s[i], &mut tau);
+    let mut ages = DMatrix::zeros(d.samples(), package_of.len());
+    for i in 0..d.samples() {
+        relative_ages(clocks, d.t_s[i], &mut tau);
+        for (j, &p) in package_of.iter().enumerate() {
+            ages[(i, j)] = tau[p];
         }
-        tau[package_of[j]]
-    })
+    }
+    ages
 }
 
 /// The centripetal term's time derivative at `r`: `D r` of the module docs.
@@ -924,5 +926,47 @@ mod period_tests {
         let periods = sawtooth_periods(&turning, &t_s, 0.016);
         let half = 0.5 * span;
         assert!((periods - 1000.0 * 0.5 * 1.6e-7 * half * half).abs() < 1e-6, "{periods}");
+    }
+
+    /// Each accelerometer's age at every sample is its own package's age at that sample's time,
+    /// less the packages' mean there (written out from `SampleClock::ticks`, not through
+    /// `relative_ages`). It once filled a column-major matrix from a per-row cache, so every
+    /// accelerometer after the first took the last sample's ages at every sample.
+    #[test]
+    fn every_accelerometer_takes_its_own_packages_age_at_each_sample() {
+        use super::super::data::DynamicData;
+        use super::accelerometer_ages;
+        use crate::selfcal::clock::SampleClock;
+        let clock = |rate: f64, phase: f64| {
+            Some(SampleClock { nominal_hz: 1000.0, rate_offset: rate, drift_per_s: 1e-6, phase_s: phase, t_ref_s: 0.2 })
+        };
+        let clocks = [clock(2.1e-3, 0.1e-3), clock(-1.3e-3, 0.45e-3), clock(0.4e-3, 0.8e-3)];
+        let samples = 25;
+        let t_s: Vec<f64> = (0..samples).map(|i| 0.016 * i as f64 + 0.003).collect();
+        let d = DynamicData {
+            t_s: t_s.clone(),
+            outputs: nalgebra::DMatrix::zeros(samples, 5),
+            used: vec![true; samples * 5],
+            run_starts: vec![0],
+            reference_rate_rad_s: None,
+            extra_unknowns_per_sample: 0,
+        };
+        let package_of = [2, 0, 1, 0, 2];
+        let ages = accelerometer_ages(&d, &clocks, &package_of);
+        let age = |p: usize, t: f64| {
+            let n = clocks[p].expect("clocked").ticks(t);
+            (n - n.floor()) / 1000.0
+        };
+        for (i, &t) in t_s.iter().enumerate() {
+            let mean = (0..3).map(|p| age(p, t)).sum::<f64>() / 3.0;
+            for (j, &p) in package_of.iter().enumerate() {
+                let expected = age(p, t) - mean;
+                assert!(
+                    (ages[(i, j)] - expected).abs() < 1e-15,
+                    "sample {i}, accelerometer {j}: {} against {expected}",
+                    ages[(i, j)]
+                );
+            }
+        }
     }
 }
