@@ -25,7 +25,8 @@ use super::segment::{DetectorSettings, Interval, Segmentation, segment};
 use super::static_drift::{StaticDrift, static_drift_at, static_times};
 use super::tension::{StaticTension, tension_at};
 use super::timing::{
-    ClockEstimate, ClockProblem, SigmaCheck, TIMING_UNKNOWNS_PER_SAMPLE, gyro_offsets, host_dt_s, sawtooth_periods,
+    ClockEstimate, ClockProblem, SigmaCheck, TIMING_UNKNOWNS_PER_SAMPLE, accelerometer_ages, gyro_offsets, host_dt_s,
+    sawtooth_periods,
 };
 use crate::array::wiring::RecordingArray;
 
@@ -735,8 +736,12 @@ fn estimate_clocks(
         let residual = misfit::residuals(&array.array, &fit.params, &measured, &fit.motion);
         huber::expected_derivative(&residual, &fitted_to.used, h.clip_m_s2, &stat.sigma)
     });
-    fit.covariance = robust_covariance_with_bread(&array.array, stat, &fitted_to, bread.as_deref(), settings, &fit)
-        .map_err(ClockFailure::Fit)?;
+    // Each sample's timing motion eliminated too (`selfcal::timing_information`): at the clocks
+    // the outputs were corrected with.
+    let ages = accelerometer_ages(&fitted_to, &clocks, &package_of);
+    fit.covariance =
+        robust_covariance_with_bread(&array.array, stat, &fitted_to, bread.as_deref(), Some(&ages), settings, &fit)
+            .map_err(ClockFailure::Fit)?;
     fit.omega_sigma_rad_s = crate::selfcal::track::rate_sigmas(
         &array.array,
         &fitted_to,

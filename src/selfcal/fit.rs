@@ -36,6 +36,7 @@ use super::model::{Gauge, PER_ACCEL, SampleMotion, SensorSet, sensors};
 use super::motion::{self, SampleData};
 use super::schur::{self, LowerBlocks, SampleScratch, mirror_upper_blocks};
 use super::tension;
+use super::timing_information::{TimingSamples, reduced_information};
 use super::track;
 use super::unseen::{Combination, NULL_RELATIVE, Unseen, unseen};
 use crate::array::Array;
@@ -929,7 +930,10 @@ fn static_rms(array: &Array, stat: &StaticData, state: &State, settings: &FitSet
 
 /// The Cramer-Rao bound in the gauge at a known state: the constrained inverse of the Fisher
 /// information for static means of `counts` samples and dynamic samples of `dynamic`, with white
-/// noise `sigma` per sample and accelerometer. Also returns the null directions before the gauge.
+/// noise `sigma` per sample and accelerometer. With `ages` (each accelerometer's relative age at
+/// every dynamic sample, s: an array whose packages' sample clocks the calibration models) each
+/// sample's timing motion is eliminated too, as the calibration's covariance eliminates it. Also
+/// returns the null directions before the gauge.
 #[allow(clippy::too_many_arguments)]
 pub fn cramer_rao(
     array: &Array,
@@ -940,6 +944,7 @@ pub fn cramer_rao(
     motion: &[SampleMotion],
     params: &SensorSet,
     gravity_m_s2: f64,
+    ages: Option<&DMatrix<f64>>,
 ) -> Result<(DMatrix<f64>, usize), FitError> {
     let n = array.len();
     let poses = up.len();
@@ -956,7 +961,26 @@ pub fn cramer_rao(
     };
     let state = State { params: params.clone(), up: up.to_vec(), motion: motion.to_vec() };
     let settings = FitSettings { gravity_m_s2, ..FitSettings::default() };
-    let normal = normal_equations(array, &stat, dynamic.filter(|_| with_dynamic), &settings, &weights, &state, &active);
+    let timing = ages.zip(dynamic).filter(|_| with_dynamic);
+    // With the timing motion the dynamic information is formed below (`selfcal::timing_information`).
+    let dynamic_normal = dynamic.filter(|_| with_dynamic && timing.is_none());
+    let mut normal = normal_equations(array, &stat, dynamic_normal, &settings, &weights, &state, &active);
+    if let Some((ages, d)) = timing {
+        // Each sample's timing motion eliminated with its motion.
+        let na = PER_ACCEL * n;
+        let sens = sensors(array, params);
+        let samples = TimingSamples {
+            sens: &sens,
+            data: d,
+            motion,
+            weights: &weights.dynamic_w,
+            output_w: None,
+            fixed: d.reference_rate_rad_s.is_some(),
+            ages: Some(ages),
+        };
+        let mut top = normal.h.view_mut((0, 0), (na, na));
+        top += reduced_information(&samples);
+    }
     let (null, _) = count_null(&normal.h, &active);
     let constraints = gauge.constraints(array, with_dynamic, 2 * poses);
     Ok((constrained_inverse(&normal.h, &constraints, &active, &vec![false; dim], false)?, null))

@@ -14,8 +14,8 @@
 //!   over blocks of samples (a clocked calibration's); [`huber`]: the weights that keep a clocked
 //!   rotation phase's heavy tail from leading it; [`unseen`]: what it cannot see beyond the
 //!   gauge; [`geometry`]: what an array's geometry cannot see, on synthetic data;
-//! - [`timing_information`]: a clocked calibration's covariance with each sample's timing motion
-//!   eliminated, against held (what the printed covariance leaves out);
+//! - [`timing_information`]: a clocked calibration's dynamic information and scores with each
+//!   sample's timing motion eliminated (what [`robust`] inverts for a clocked calibration);
 //! - [`lag`]: the accelerometers' lag behind the reference gyroscopes (the rate `--use-gyro` takes);
 //! - [`misfit`]: the rotation phase's chi^2/dof, one metric for calibrate and diagnose;
 //! - [`tension`]: the static phase refitted alone, against the joint fit; [`static_drift`]: the

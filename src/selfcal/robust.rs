@@ -12,7 +12,9 @@
 //! within a block (and across a sample's accelerometers) is counted as it is. The static
 //! intervals keep their model information (their residuals are near white; their weights already
 //! carry the static chi^2/dof). With white residuals `sum_b s_b s_b^T` tends to the dynamic
-//! information and the sandwich to `K` (`K H K = K` in the gauge).
+//! information and the sandwich to `K` (`K H K = K` in the gauge). In a clocked calibration the
+//! information and the scores also eliminate each sample's timing motion
+//! (`selfcal::timing_information`), which the fit corrected the outputs with and then held.
 
 use nalgebra::DMatrix;
 use rayon::prelude::*;
@@ -21,6 +23,7 @@ use super::data::{DynamicData, StaticData};
 use super::fit::{Fit, FitError, FitSettings, State, Weights, constrained_inverse, normal_equations, pinned};
 use super::model::{PER_ACCEL, sensors};
 use super::schur::{self, SampleScratch};
+use super::timing_information::{TimingSamples, reduced_information, reduced_score};
 use super::unseen::unseen;
 use crate::array::Array;
 
@@ -30,25 +33,25 @@ use crate::array::Array;
 pub const BLOCK_SAMPLES: usize = 16;
 
 /// A fit's information at its solution with `weights`: the whole and the static phase's alone,
-/// with the gauge's constraints (what [`robust_covariance`] and `selfcal::timing_information`
+/// with the gauge's constraints (what [`robust_covariance`] and [`timing_free_sigma_ratios`]
 /// invert).
-pub(super) struct AtSolution {
-    pub normal: DMatrix<f64>,
-    pub static_normal: DMatrix<f64>,
-    pub constraints: DMatrix<f64>,
-    pub active: Vec<bool>,
+struct AtSolution {
+    normal: DMatrix<f64>,
+    static_normal: DMatrix<f64>,
+    constraints: DMatrix<f64>,
+    active: Vec<bool>,
 }
 
 impl AtSolution {
     /// The constrained inverse of `information` (the fit's unseen parameters NaN).
-    pub fn inverse(&self, information: &DMatrix<f64>, fit: &Fit) -> Result<DMatrix<f64>, FitError> {
+    fn inverse(&self, information: &DMatrix<f64>, fit: &Fit) -> Result<DMatrix<f64>, FitError> {
         constrained_inverse(information, &self.constraints, &self.active, &fit.unseen_parameters, true)
     }
 }
 
 /// The information at `fit`'s solution (its covariance to about 1e-6 of a sigma with its stored
 /// weights: the weights go through the stored sigmas).
-pub(super) fn at_solution(
+fn at_solution(
     array: &Array,
     stat: &StaticData,
     dynamic: &DynamicData,
@@ -76,18 +79,23 @@ pub fn robust_covariance(
     settings: &FitSettings,
     fit: &Fit,
 ) -> Result<DMatrix<f64>, FitError> {
-    robust_covariance_with_bread(array, stat, dynamic, None, settings, fit)
+    robust_covariance_with_bread(array, stat, dynamic, None, None, settings, fit)
 }
 
 /// [`robust_covariance`] of an M-estimator: the scores from `dynamic` (the data the fit was fitted
 /// to), `K` from the information of the same outputs, each weighted by its factor in `bread`
 /// (row-major, samples x accelerometers: the weight's derivative averaged over the noise,
-/// `selfcal::huber::expected_derivative`; `None`: every factor 1).
+/// `selfcal::huber::expected_derivative`; `None`: every factor 1). With `ages` (each
+/// accelerometer's relative age at every sample, s: a clocked calibration whose outputs
+/// `dynamic` were corrected with a fitted timing motion) the dynamic information and the scores
+/// eliminate each sample's timing motion too (`selfcal::timing_information`): the covariance
+/// does not hold the timing motion as known.
 pub fn robust_covariance_with_bread(
     array: &Array,
     stat: &StaticData,
     dynamic: &DynamicData,
     bread: Option<&[f64]>,
+    ages: Option<&DMatrix<f64>>,
     settings: &FitSettings,
     fit: &Fit,
 ) -> Result<DMatrix<f64>, FitError> {
@@ -98,17 +106,35 @@ pub fn robust_covariance_with_bread(
     let weights = Weights { dynamic_output_w: bread.map(<[f64]>::to_vec), ..Weights::stored_in(fit, stat) };
     let at = at_solution(array, stat, dynamic, &weights, settings, fit);
     let dim = at.active.len();
-    let k = at.inverse(&at.normal, fit)?;
+    let sens = sensors(array, &fit.params);
+    let fixed = dynamic.reference_rate_rad_s.is_some();
+    let timing = ages.map(|ages| TimingSamples {
+        sens: &sens,
+        data: dynamic,
+        motion: &fit.motion,
+        weights: &weights.dynamic_w,
+        output_w: bread,
+        fixed,
+        ages: Some(ages),
+    });
+    let k = match &timing {
+        Some(t) => {
+            let mut information = at.static_normal.clone();
+            let mut top = information.view_mut((0, 0), (na, na));
+            top += reduced_information(t);
+            at.inverse(&information, fit)?
+        }
+        None => at.inverse(&at.normal, fit)?,
+    };
     // The dynamic scores, block by block (each block's sum in order: the same bits on any
     // number of threads).
-    let sens = sensors(array, &fit.params);
     let samples = schur::Samples {
         sens: &sens,
         data: dynamic,
         motion: &fit.motion,
         weights: &weights.dynamic_w,
         output_w: None,
-        fixed: dynamic.reference_rate_rad_s.is_some(),
+        fixed,
         rate_curvature: false,
     };
     let blocks = dynamic.samples().div_ceil(BLOCK_SAMPLES);
@@ -118,6 +144,9 @@ pub fn robust_covariance_with_bread(
             let mut g = nalgebra::DVector::zeros(na);
             let mut scratch = SampleScratch::default();
             let range = b * BLOCK_SAMPLES..((b + 1) * BLOCK_SAMPLES).min(dynamic.samples());
+            if let Some(t) = &timing {
+                return reduced_score(&TimingSamples { output_w: None, ..*t }, range);
+            }
             schur::accumulate_samples(&samples, range, None, &mut g, &mut scratch);
             g
         })
@@ -138,4 +167,38 @@ pub fn robust_covariance_with_bread(
         }
     }
     Ok(cov)
+}
+
+/// The parameters' sigmas of a clocked calibration with each sample's timing motion eliminated
+/// over those with it held as known (`selfcal::timing_information`), from the information at
+/// `fit`'s solution with its stored weights (no scores: the model's covariance), per accelerometer
+/// parameter (`PER_ACCEL` per accelerometer, in order; NaN where the fit does not see it).
+/// `dynamic`: the rotation phase the fit was fitted to; `ages`: each accelerometer's relative age
+/// at every sample (`selfcal::timing::accelerometer_ages` of the fitted clocks).
+pub fn timing_free_sigma_ratios(
+    array: &Array,
+    stat: &StaticData,
+    dynamic: &DynamicData,
+    settings: &FitSettings,
+    fit: &Fit,
+    ages: &DMatrix<f64>,
+) -> Result<Vec<f64>, FitError> {
+    let na = PER_ACCEL * array.len();
+    let weights = Weights::stored_in(fit, stat);
+    let at = at_solution(array, stat, dynamic, &weights, settings, fit);
+    let sens = sensors(array, &fit.params);
+    let samples = TimingSamples {
+        sens: &sens,
+        data: dynamic,
+        motion: &fit.motion,
+        weights: &weights.dynamic_w,
+        output_w: None,
+        fixed: dynamic.reference_rate_rad_s.is_some(),
+        ages: Some(ages),
+    };
+    let mut information = at.static_normal.clone();
+    let mut top = information.view_mut((0, 0), (na, na));
+    top += reduced_information(&samples);
+    let (held, free) = (at.inverse(&at.normal, fit)?, at.inverse(&information, fit)?);
+    Ok((0..na).map(|i| (free[(i, i)] / held[(i, i)]).sqrt()).collect())
 }

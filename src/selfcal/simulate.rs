@@ -1241,7 +1241,9 @@ pub fn drift_removal_variance_at_truth(
 /// The Cramer-Rao bound in the gauge at the truth of a simulated recording, on the samples the
 /// calibration `cal` used (its static intervals and dynamic samples), for white noise of
 /// `noise_sigma_m_s2` per sample and accelerometer; with `use_gyro`, the rate taken as known (the
-/// gyroscopes'). Also returns the Fisher information's null directions before the gauge.
+/// gyroscopes'). Where the calibration modelled the packages' sample clocks, each sample's timing
+/// motion is eliminated too, at the true clocks' relative ages. Also returns the Fisher
+/// information's null directions before the gauge.
 pub fn bound_at_truth(
     array: &RecordingArray,
     sim: &Simulated,
@@ -1260,7 +1262,22 @@ pub fn bound_at_truth(
         d.reference_rate_rad_s = Some(prepared.index.iter().map(|&i| sim.motion[i].omega_rad_s).collect());
     }
     let motion: Vec<SampleMotion> = prepared.index.iter().map(|&i| sim.motion[i]).collect();
-    super::fit::cramer_rao(&array.array, &counts, noise_sigma_m_s2, &up, dynamic.as_ref(), &motion, truth, gravity_m_s2)
+    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.unwrap_or(0)).collect();
+    let ages = match (&dynamic, cal.clocks.is_some()) {
+        (Some(d), true) => Some(super::timing::accelerometer_ages(d, &sim.clocks, &package_of)),
+        _ => None,
+    };
+    super::fit::cramer_rao(
+        &array.array,
+        &counts,
+        noise_sigma_m_s2,
+        &up,
+        dynamic.as_ref(),
+        &motion,
+        truth,
+        gravity_m_s2,
+        ages.as_ref(),
+    )
 }
 
 #[cfg(test)]

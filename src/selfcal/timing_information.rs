@@ -1,135 +1,207 @@
-//! What a clocked calibration's covariance leaves out: each sample's timing motion.
+//! A clocked calibration's dynamic information and scores with each sample's timing motion
+//! eliminated.
 //!
 //! With the packages' sample clocks (`selfcal::timing`) an output also depends on its package's
 //! relative age `tau` times the sample's jerk and angular jerk (6 unknowns a sample). The
 //! calibration fits that timing motion apart, on the residuals with the motion held, corrects the
-//! outputs with it and then holds it: the joint fit and every covariance (`selfcal::fit`,
-//! `selfcal::robust`) eliminate only the 9 motion unknowns of a sample. Here the information is
-//! formed with the timing motion eliminated too, densely, sample by sample: the local design
-//! `L` (outputs x 9, or x 15 with the timing columns, which are the specific force's and the
-//! angular acceleration's scaled by the output's age), the parameters' design `G` (each output's
-//! own accelerometer's 7 derivatives) and `G^T W G - G^T W L (L^T W L)^+ L^T W G`. With 9 local
-//! unknowns this is the fit's own dynamic information, formed another way (the fit sums
-//! the Schur complement's 7 x 7 blocks, `selfcal::schur`), which checks both.
+//! outputs with it and holds it while the parameters and the motion are refitted; the rounds
+//! alternate until the misfit settles, so the solution is (near) the joint optimum of the motion,
+//! the timing motion and the parameters. The joint fit's normal equations (`selfcal::schur`)
+//! eliminate only the 9 motion unknowns of a sample (6 with the gyroscopes' rate): as a
+//! covariance they would treat the timing motion as known. Here each sample's local design `L`
+//! also has the 6 timing columns, the specific force's and the angular acceleration's columns
+//! scaled by each output's age, and the information is `G^T W G - G^T W L (L^T W L)^+ L^T W G`
+//! summed over the samples, with `G` each output's own accelerometer's 7 derivatives.
 //!
-//! On the matched protocol's simulated recordings the locations' sigmas grow by a median factor
-//! of 13-15 with the timing motion free, the other kinds' by at most 5%: a location change is
-//! nearly absorbed by each sample's timing motion times the ages. The calibration's locations are
-//! nonetheless only about 1.35 times their held sigmas off the truth, at a fixed point of its
-//! alternation; how the two fit together is open (`docs/sample-clocks.md`).
+//! **Form.** As in `selfcal::schur`, the update of a sample is `P_jk dg_j dg_k^T` for every pair
+//! of outputs, with `P_jk = w_j w_k dl_j^T (L^T W L)^+ dl_k`: 7 x 7 blocks, not a dense product.
+//! The timing columns are about `1e-4` of the motion's (ages of a few tenths of a millisecond), so
+//! `L^T W L` is scaled to a unit diagonal before its inverse ([`local_inverse`]: Cholesky, or the
+//! eigenvalues above 1e-12 of the largest where a sample does not fix every unknown, as a rate
+//! column that vanishes at zero rate).
+//!
+//! **Size.** On the matched protocol's simulated recordings the locations' and the static kinds'
+//! sigmas grow by a median of about 1.3 with the timing motion free, which is the Monte Carlo's
+//! floor of the locations' errors against the sigmas that held it (RMS z 1.35 with no vibration,
+//! `results/mimu4444/EXPECTATIONS.md` (ac)). Until 2026-11-30 a defect in the ages
+//! (`timing::accelerometer_ages`) made this growth look like 8-15.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, SMatrix, SVector};
+use rayon::prelude::*;
 
-use super::data::{DynamicData, StaticData};
-use super::fit::{Fit, FitError, FitSettings, Weights};
-use super::model::{PER_ACCEL, SampleMotion, Sensor, sensors};
-use super::robust::at_solution;
-use crate::array::Array;
+use super::data::DynamicData;
+use super::model::{PER_ACCEL, SampleMotion, Sensor};
 
 /// The motion's unknowns in a sample's local design.
 const MOTION_UNKNOWNS: usize = 9;
 /// The timing motion's: jerk and angular jerk (`selfcal::timing::TIMING_UNKNOWNS_PER_SAMPLE`).
 const TIMING_UNKNOWNS: usize = 6;
+/// Samples summed apart before the chunks are added in order (the same bits on any number of
+/// threads).
+const CHUNK_SAMPLES: usize = 256;
 
-/// The parameters' sigmas with and without the timing motion eliminated.
-#[derive(Debug, Clone)]
-pub struct TimingFreeSigmas {
-    /// Per accelerometer parameter (`PER_ACCEL` per accelerometer, in order), its sigma with the
-    /// timing motion eliminated over its sigma with it held (NaN where the fit does not see it).
-    pub sigma_ratio: Vec<f64>,
-    /// The dense reduction with 9 local unknowns against the fit's dynamic information: the
-    /// relative Frobenius norm of their difference.
-    pub agreement_with_fit: f64,
+/// What every sample shares in the reduction.
+#[derive(Clone, Copy)]
+pub struct TimingSamples<'a> {
+    pub sens: &'a [Sensor],
+    pub data: &'a DynamicData,
+    pub motion: &'a [SampleMotion],
+    /// Each accelerometer's inverse variance.
+    pub weights: &'a [f64],
+    /// Per output (row-major, samples x accelerometers), a factor on its accelerometer's weight
+    /// (the robust covariance's bread); `None`: every factor 1.
+    pub output_w: Option<&'a [f64]>,
+    /// The rate is the reference gyroscopes' (not an unknown).
+    pub fixed: bool,
+    /// Each accelerometer's relative age at every sample (samples x accelerometers, s:
+    /// `selfcal::timing::accelerometer_ages`); `None`: the motion alone is eliminated.
+    pub ages: Option<&'a DMatrix<f64>>,
+}
+
+impl TimingSamples<'_> {
+    /// Adds sample `i`'s share of the reduced information (into `h`, when given) and of the
+    /// reduced gradient `g` (the score: `G^T W r` less its part along the local design).
+    fn accumulate(&self, i: usize, h: Option<&mut DMatrix<f64>>, g: &mut DVector<f64>) {
+        let n = self.sens.len();
+        let m = &self.motion[i];
+        let mut hll = Local::zeros();
+        let mut gl = LocalVector::zeros();
+        let mut rows: Vec<(usize, f64, LocalVector, [f64; PER_ACCEL])> = Vec::with_capacity(n);
+        for (j, s) in self.sens.iter().enumerate() {
+            if !self.data.used[i * n + j] {
+                continue;
+            }
+            let q = m.specific_force_m_s2(&s.position_m);
+            let r = self.data.outputs[(i, j)] - s.output(&q);
+            let wt = self.weights[j] * self.output_w.map_or(1.0, |f| f[i * n + j]);
+            let motion = s.d_motion(m);
+            let mut dl = LocalVector::zeros();
+            for (c, v) in motion.iter().enumerate() {
+                dl[c] = if self.fixed && c >= 6 { 0.0 } else { *v };
+            }
+            if let Some(ages) = self.ages {
+                for c in 0..TIMING_UNKNOWNS {
+                    dl[MOTION_UNKNOWNS + c] = ages[(i, j)] * motion[c];
+                }
+            }
+            let d4 = s.d_intrinsic(&q);
+            let dloc = s.d_location(m);
+            let dg = [d4[0], d4[1], d4[2], d4[3], dloc.x, dloc.y, dloc.z];
+            hll.ger(wt, &dl, &dl, 1.0);
+            gl.axpy(wt * r, &dl, 1.0);
+            for (a, v) in dg.iter().enumerate() {
+                g[PER_ACCEL * j + a] += wt * v * r;
+            }
+            rows.push((j, wt, dl * wt, dg));
+        }
+        let inv = local_inverse(&hll);
+        let y = inv * gl;
+        for (j, _, wdl, dg) in &rows {
+            let f = wdl.dot(&y);
+            for (a, v) in dg.iter().enumerate() {
+                g[PER_ACCEL * j + a] -= v * f;
+            }
+        }
+        let Some(h) = h else { return };
+        for (a, (j, wa, wdla, dga)) in rows.iter().enumerate() {
+            for (p, x) in dga.iter().enumerate() {
+                for (q, z) in dga.iter().enumerate() {
+                    h[(PER_ACCEL * j + p, PER_ACCEL * j + q)] += wa * x * z;
+                }
+            }
+            let ya = inv * wdla;
+            for (k, _, wdlb, dgb) in &rows[..=a] {
+                let pab = ya.dot(wdlb);
+                for (q, z) in dgb.iter().enumerate() {
+                    let column = &mut h.column_mut(PER_ACCEL * k + q);
+                    let column = &mut column.as_mut_slice()[PER_ACCEL * j..PER_ACCEL * (j + 1)];
+                    for (v, x) in column.iter_mut().zip(dga) {
+                        *v -= pab * x * z;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A sample's local unknowns: the motion's 9, then the timing motion's 6 (their columns zero
+/// where the rate is not an unknown or the timing motion is not eliminated).
+type Local = SMatrix<f64, 15, 15>;
+type LocalVector = SVector<f64, 15>;
+
+/// The pseudo-inverse of a sample's local information: scaled to a unit diagonal (the timing
+/// columns are about 1e-4 of the motion's), a unit where a column is zero (an unknown the sample
+/// does not have: its rows of the design are zero, so the inverse's entries there are never
+/// used), then Cholesky where its smallest pivot clears 1e-12, else the eigenvalues above 1e-12 of
+/// the largest (as `selfcal::motion::information_inverse`).
+fn local_inverse(hll: &Local) -> Local {
+    let d = LocalVector::from_fn(|k, _| if hll[(k, k)] > 0.0 { 1.0 / hll[(k, k)].sqrt() } else { 0.0 });
+    let mut scaled = Local::from_fn(|r, c| d[r] * hll[(r, c)] * d[c]);
+    for k in 0..15 {
+        if d[k] == 0.0 {
+            scaled[(k, k)] = 1.0;
+        }
+    }
+    let unscale = |x: &Local| Local::from_fn(|r, c| d[r] * x[(r, c)] * d[c]);
+    if let Some(chol) = scaled.cholesky() {
+        let smallest = chol.l().diagonal().iter().fold(f64::INFINITY, |a, &b| a.min(b * b));
+        if smallest > 1e-12 {
+            return unscale(&chol.inverse());
+        }
+    }
+    let eig = scaled.symmetric_eigen();
+    let largest = eig.eigenvalues.iter().fold(0.0_f64, |a, &b| a.max(b));
+    let mut inv = Local::zeros();
+    for (k, &lambda) in eig.eigenvalues.iter().enumerate() {
+        if lambda > 1e-12 * largest {
+            let v = eig.eigenvectors.column(k);
+            inv += v * v.transpose() / lambda;
+        }
+    }
+    unscale(&inv)
 }
 
 /// The reduced dynamic information of the accelerometer parameters (`PER_ACCEL` per
-/// accelerometer), each sample's motion eliminated and, with `ages` (samples x accelerometers, s),
-/// its timing motion too. `weights`: each accelerometer's inverse variance. Summed over samples in
-/// order.
-pub fn reduced_dynamic_information(
-    sens: &[Sensor],
-    d: &DynamicData,
-    motion: &[SampleMotion],
-    weights: &[f64],
-    ages: Option<&DMatrix<f64>>,
-) -> DMatrix<f64> {
-    let n = sens.len();
-    let na = PER_ACCEL * n;
-    let local = MOTION_UNKNOWNS + if ages.is_some() { TIMING_UNKNOWNS } else { 0 };
+/// accelerometer, in order): every sample's motion eliminated and, with `ages`, its timing motion
+/// too (module docs).
+pub fn reduced_information(s: &TimingSamples) -> DMatrix<f64> {
+    let na = PER_ACCEL * s.sens.len();
+    let samples = s.data.samples().min(s.motion.len());
+    let chunks: Vec<DMatrix<f64>> = (0..samples.div_ceil(CHUNK_SAMPLES))
+        .into_par_iter()
+        .map(|c| {
+            let mut h = DMatrix::zeros(na, na);
+            let mut g = DVector::zeros(na);
+            for i in c * CHUNK_SAMPLES..((c + 1) * CHUNK_SAMPLES).min(samples) {
+                s.accumulate(i, Some(&mut h), &mut g);
+            }
+            h
+        })
+        .collect();
     let mut h = DMatrix::zeros(na, na);
-    let mut l = DMatrix::zeros(n, local);
-    let mut g = DMatrix::zeros(n, na);
-    for (i, m) in motion.iter().enumerate().take(d.samples()) {
-        l.fill(0.0);
-        g.fill(0.0);
-        let mut w = DVector::zeros(n);
-        for (j, s) in sens.iter().enumerate() {
-            if !d.used[i * n + j] {
-                continue;
-            }
-            w[j] = weights[j];
-            let dl = s.d_motion(m);
-            for (c, v) in dl.iter().enumerate() {
-                l[(j, c)] = *v;
-            }
-            if let Some(ages) = ages {
-                for c in 0..TIMING_UNKNOWNS {
-                    l[(j, MOTION_UNKNOWNS + c)] = ages[(i, j)] * dl[c];
-                }
-            }
-            let intrinsic = s.d_intrinsic(&m.specific_force_m_s2(&s.position_m));
-            let location = s.d_location(m);
-            let row = [intrinsic[0], intrinsic[1], intrinsic[2], intrinsic[3], location.x, location.y, location.z];
-            for (c, v) in row.iter().enumerate() {
-                g[(j, PER_ACCEL * j + c)] = *v;
-            }
-            // `G^T W G`: each output touches its own accelerometer's block only.
-            for (r, a) in row.iter().enumerate() {
-                for (c, b) in row.iter().enumerate() {
-                    h[(PER_ACCEL * j + r, PER_ACCEL * j + c)] += weights[j] * a * b;
+    for c in &chunks {
+        h += c;
+    }
+    // The blocks below the diagonal were summed; mirror them above it.
+    let accelerometers = s.sens.len();
+    for a in 0..accelerometers {
+        for b in a + 1..accelerometers {
+            for p in 0..PER_ACCEL {
+                for q in 0..PER_ACCEL {
+                    h[(PER_ACCEL * a + p, PER_ACCEL * b + q)] = h[(PER_ACCEL * b + q, PER_ACCEL * a + p)];
                 }
             }
         }
-        let lw = DMatrix::from_fn(local, n, |r, c| l[(c, r)] * w[c]);
-        let b = &lw * &l;
-        let largest = b.diagonal().max();
-        if largest <= 0.0 {
-            continue;
-        }
-        let Ok(b_inv) = b.pseudo_inverse(1e-12 * largest) else { continue };
-        let a = &lw * &g;
-        h -= a.transpose() * b_inv * a;
     }
     h
 }
 
-/// The fit's parameters' sigmas with each sample's timing motion eliminated against held (module
-/// docs), at the fit's stored weights. `dynamic`: the rotation phase the fit was fitted to (its
-/// motion and used outputs); `ages`: each accelerometer's relative age at every sample
-/// (`selfcal::timing::accelerometer_ages` of the fitted clocks).
-pub fn timing_free_sigmas(
-    array: &Array,
-    stat: &StaticData,
-    dynamic: &DynamicData,
-    settings: &FitSettings,
-    fit: &Fit,
-    ages: &DMatrix<f64>,
-) -> Result<TimingFreeSigmas, FitError> {
-    let na = PER_ACCEL * array.len();
-    let weights = Weights::stored_in(fit, stat);
-    let at = at_solution(array, stat, dynamic, &weights, settings, fit);
-    let sens = sensors(array, &fit.params);
-    let held = reduced_dynamic_information(&sens, dynamic, &fit.motion, &weights.dynamic_w, None);
-    let free = reduced_dynamic_information(&sens, dynamic, &fit.motion, &weights.dynamic_w, Some(ages));
-    let fit_dynamic = (&at.normal - &at.static_normal).view((0, 0), (na, na)).into_owned();
-    let agreement_with_fit = (&held - &fit_dynamic).norm() / fit_dynamic.norm();
-    let with = |dynamic: &DMatrix<f64>| {
-        let mut information = at.static_normal.clone();
-        let mut top = information.view_mut((0, 0), (na, na));
-        top += dynamic;
-        at.inverse(&information, fit)
-    };
-    let (k_held, k_free) = (with(&held)?, with(&free)?);
-    let sigma_ratio = (0..na).map(|i| (k_free[(i, i)] / k_held[(i, i)]).sqrt()).collect();
-    Ok(TimingFreeSigmas { sigma_ratio, agreement_with_fit })
+/// The reduced score (gradient of the weighted misfit with each sample's local unknowns
+/// eliminated, as [`reduced_information`] eliminates them) summed over samples `range`, in order.
+pub fn reduced_score(s: &TimingSamples, range: std::ops::Range<usize>) -> DVector<f64> {
+    let mut g = DVector::zeros(PER_ACCEL * s.sens.len());
+    for i in range {
+        s.accumulate(i, None, &mut g);
+    }
+    g
 }

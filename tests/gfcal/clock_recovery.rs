@@ -478,21 +478,74 @@ fn a_package_whose_sawtooth_the_gyroscopes_cannot_show_is_clocked_with_the_rest(
     assert!(rms(&location_um) < 40.0, "trial {trial}: locations {} um", rms(&location_um));
 }
 
-/// What the printed covariance leaves out (`selfcal::timing_information`): the dynamic
-/// information formed densely sample by sample with the 9 motion unknowns eliminated is the fit's
-/// own (summed from the Schur complement's 7 x 7 blocks, another implementation) to 1e-9; with
-/// each sample's 6 timing unknowns eliminated too, no sigma falls (more unknowns cannot add
-/// information) and the locations' grow (median above 3 times; 13-15 times on the matched
-/// protocol's 100 s recordings, `results/mimu4444/EXPECTATIONS.md` (y); how that squares with the
-/// calibration's locations, 1.35 times their held sigmas off the truth, is open, (aa)). (The static kinds' growth is
-/// printed: a median 1.29 times on this 30 s recording of 6 poses, which takes more of them from
-/// its rotation phase; at most 1.05 on the 100 s recordings of 20 poses. A bound of 1.1 written
-/// from those failed here and was not kept.)
+/// Each sample's local design written out densely (an independent route to
+/// `selfcal::timing_information`): `W^(1/2) L` (9 motion columns, then with `ages` the 6 timing
+/// columns, the specific force's and the angular acceleration's times the output's age) with its
+/// columns scaled to unit norm, an orthonormal basis `Q` of its span from an SVD, and
+/// `H += R^T R` with `R = (I - Q Q^T) W^(1/2) G`, `G` every output's 7 parameter derivatives.
+fn dense_reduced_information(
+    sens: &[gfcal::selfcal::model::Sensor],
+    d: &gfcal::selfcal::data::DynamicData,
+    motion: &[gfcal::selfcal::model::SampleMotion],
+    weights: &[f64],
+    ages: Option<&nalgebra::DMatrix<f64>>,
+) -> nalgebra::DMatrix<f64> {
+    use nalgebra::DMatrix;
+    let n = sens.len();
+    let na = PER_ACCEL * n;
+    let local = if ages.is_some() { 15 } else { 9 };
+    let mut h = DMatrix::zeros(na, na);
+    for (i, m) in motion.iter().enumerate().take(d.samples()) {
+        let mut l = DMatrix::zeros(n, local);
+        let mut g = DMatrix::zeros(n, na);
+        for (j, s) in sens.iter().enumerate() {
+            if !d.used[i * n + j] {
+                continue;
+            }
+            let sw = weights[j].sqrt();
+            let dl = s.d_motion(m);
+            for c in 0..local {
+                l[(j, c)] = sw * if c < 9 { dl[c] } else { ages.map_or(0.0, |a| a[(i, j)]) * dl[c - 9] };
+            }
+            let intrinsic = s.d_intrinsic(&m.specific_force_m_s2(&s.position_m));
+            let location = s.d_location(m);
+            let row = [intrinsic[0], intrinsic[1], intrinsic[2], intrinsic[3], location.x, location.y, location.z];
+            for (c, v) in row.iter().enumerate() {
+                g[(j, PER_ACCEL * j + c)] = sw * v;
+            }
+        }
+        for mut c in l.column_iter_mut() {
+            let norm = c.norm();
+            if norm > 0.0 {
+                c /= norm;
+            }
+        }
+        let svd = l.svd(true, false);
+        let largest = svd.singular_values.max();
+        let keep: Vec<usize> =
+            (0..svd.singular_values.len()).filter(|&k| svd.singular_values[k] > 1e-10 * largest).collect();
+        let q = svd.u.expect("left singular vectors").select_columns(&keep);
+        let r = &g - &q * (q.transpose() * &g);
+        h += r.transpose() * r;
+    }
+    h
+}
+
+/// A clocked calibration's covariance eliminates each sample's timing motion
+/// (`selfcal::timing_information`): its reduced information equals the dense route above (with
+/// the motion alone and with the timing motion too) to 1e-12 of its norm; no sigma falls with the
+/// timing motion free (more unknowns cannot add information); and the locations' sigmas grow by a
+/// median between 1.1 and 1.6, the bounds written from the clock Monte Carlo's floor (the locations'
+/// errors at RMS z 1.35-1.36 against sigmas that held the timing motion, with no vibration,
+/// `results/mimu4444/EXPECTATIONS.md` (w), (aa)). On this 30 s recording of 6 poses the growth is
+/// 1.31, the static kinds' 1.33 ((ac); until 2026-11-30 wrong ages made it look like 8-15).
 #[test]
-fn the_locations_sigmas_grow_with_the_timing_motion_eliminated() {
+fn the_covariance_eliminates_each_samples_timing_motion() {
     use gfcal::selfcal::calibrate::prepare_dynamic;
+    use gfcal::selfcal::model::sensors;
+    use gfcal::selfcal::robust::timing_free_sigma_ratios;
     use gfcal::selfcal::timing::accelerometer_ages;
-    use gfcal::selfcal::timing_information::timing_free_sigmas;
+    use gfcal::selfcal::timing_information::{TimingSamples, reduced_information};
     let (cell, sim) = short_clocked_recording(7);
     let array = &cell.array;
     let settings = CalibrateSettings::default();
@@ -502,12 +555,30 @@ fn the_locations_sigmas_grow_with_the_timing_motion_eliminated() {
     let d = prepared.data.expect("a rotation phase");
     let package_of: Vec<usize> = array.package_of.iter().map(|p| p.expect("every axis has its package")).collect();
     let ages = accelerometer_ages(&d, clocks, &package_of);
-    let s = timing_free_sigmas(&array.array, &cal.static_data, &d, &settings.fit, &cal.fit, &ages).expect("inverts");
-    assert!(s.agreement_with_fit < 1e-9, "dense against the fit's information: {:e}", s.agreement_with_fit);
+    let sens = sensors(&array.array, &cal.fit.params);
+    let weights: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    for with_ages in [None, Some(&ages)] {
+        let samples = TimingSamples {
+            sens: &sens,
+            data: &d,
+            motion: &cal.fit.motion,
+            weights: &weights,
+            output_w: None,
+            fixed: false,
+            ages: with_ages,
+        };
+        let library = reduced_information(&samples);
+        let dense = dense_reduced_information(&sens, &d, &cal.fit.motion, &weights, with_ages);
+        let agreement = (&library - &dense).norm() / dense.norm();
+        eprintln!("timing motion {}: agreement {agreement:.2e}", if with_ages.is_some() { "free" } else { "held" });
+        assert!(agreement < 1e-12, "the reduced information against the dense route: {agreement:e}");
+    }
+    let ratio =
+        timing_free_sigma_ratios(&array.array, &cal.static_data, &d, &settings.fit, &cal.fit, &ages).expect("inverts");
     let median = |kinds: &[usize]| {
-        let mut v: Vec<f64> = (0..s.sigma_ratio.len() / PER_ACCEL)
+        let mut v: Vec<f64> = (0..ratio.len() / PER_ACCEL)
             .flat_map(|j| kinds.iter().map(move |&p| PER_ACCEL * j + p))
-            .map(|i| s.sigma_ratio[i])
+            .map(|i| ratio[i])
             .filter(|r| r.is_finite())
             .collect();
         assert!(!v.is_empty());
@@ -517,8 +588,7 @@ fn the_locations_sigmas_grow_with_the_timing_motion_eliminated() {
     };
     let (intrinsic, locations) = (median(&[0, 1, 2, 3]), median(&[4, 5, 6]));
     eprintln!(
-        "agreement {:.2e}; median sigma growth with the timing motion free: scale factor, bias, tilts {intrinsic:.3}, locations {locations:.3}",
-        s.agreement_with_fit
+        "median sigma growth with the timing motion free: scale factor, bias, tilts {intrinsic:.3}, locations {locations:.3}"
     );
-    assert!(locations > 3.0, "the locations' sigmas grow only {locations} times");
+    assert!((1.1..1.6).contains(&locations), "the locations' sigmas grow {locations} times");
 }
