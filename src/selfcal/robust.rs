@@ -47,6 +47,15 @@ impl AtSolution {
     fn inverse(&self, information: &DMatrix<f64>, fit: &Fit) -> Result<DMatrix<f64>, FitError> {
         constrained_inverse(information, &self.constraints, &self.active, &fit.unseen_parameters, true)
     }
+
+    /// The constrained inverse of the static information with `dynamic` (the accelerometer
+    /// parameters' dynamic information, formed another way) in its top-left block.
+    fn inverse_with_dynamic(&self, dynamic: &DMatrix<f64>, fit: &Fit) -> Result<DMatrix<f64>, FitError> {
+        let mut information = self.static_normal.clone();
+        let mut top = information.view_mut((0, 0), (dynamic.nrows(), dynamic.ncols()));
+        top += dynamic;
+        self.inverse(&information, fit)
+    }
 }
 
 /// The information at `fit`'s solution (its covariance to about 1e-6 of a sigma with its stored
@@ -118,12 +127,7 @@ pub fn robust_covariance_with_bread(
         ages: Some(ages),
     });
     let k = match &timing {
-        Some(t) => {
-            let mut information = at.static_normal.clone();
-            let mut top = information.view_mut((0, 0), (na, na));
-            top += reduced_information(t);
-            at.inverse(&information, fit)?
-        }
+        Some(t) => at.inverse_with_dynamic(&reduced_information(t), fit)?,
         None => at.inverse(&at.normal, fit)?,
     };
     // The dynamic scores, block by block (each block's sum in order: the same bits on any
@@ -196,9 +200,6 @@ pub fn timing_free_sigma_ratios(
         fixed: dynamic.reference_rate_rad_s.is_some(),
         ages: Some(ages),
     };
-    let mut information = at.static_normal.clone();
-    let mut top = information.view_mut((0, 0), (na, na));
-    top += reduced_information(&samples);
-    let (held, free) = (at.inverse(&at.normal, fit)?, at.inverse(&information, fit)?);
+    let (held, free) = (at.inverse(&at.normal, fit)?, at.inverse_with_dynamic(&reduced_information(&samples), fit)?);
     Ok((0..na).map(|i| (free[(i, i)] / held[(i, i)]).sqrt()).collect())
 }

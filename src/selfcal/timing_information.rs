@@ -31,6 +31,7 @@ use rayon::prelude::*;
 
 use super::data::DynamicData;
 use super::model::{PER_ACCEL, SampleMotion, Sensor};
+use super::schur::mirror_upper_blocks;
 
 /// The motion's unknowns in a sample's local design.
 const MOTION_UNKNOWNS: usize = 9;
@@ -60,8 +61,9 @@ pub struct TimingSamples<'a> {
 
 impl TimingSamples<'_> {
     /// Adds sample `i`'s share of the reduced information (into `h`, when given) and of the
-    /// reduced gradient `g` (the score: `G^T W r` less its part along the local design).
-    fn accumulate(&self, i: usize, h: Option<&mut DMatrix<f64>>, g: &mut DVector<f64>) {
+    /// reduced gradient (into `g`, when given: the score, `G^T W r` less its part along the local
+    /// design).
+    fn accumulate(&self, i: usize, h: Option<&mut DMatrix<f64>>, mut g: Option<&mut DVector<f64>>) {
         let n = self.sens.len();
         let m = &self.motion[i];
         let mut hll = Local::zeros();
@@ -72,7 +74,6 @@ impl TimingSamples<'_> {
                 continue;
             }
             let q = m.specific_force_m_s2(&s.position_m);
-            let r = self.data.outputs[(i, j)] - s.output(&q);
             let wt = self.weights[j] * self.output_w.map_or(1.0, |f| f[i * n + j]);
             let motion = s.d_motion(m);
             let mut dl = LocalVector::zeros();
@@ -88,18 +89,23 @@ impl TimingSamples<'_> {
             let dloc = s.d_location(m);
             let dg = [d4[0], d4[1], d4[2], d4[3], dloc.x, dloc.y, dloc.z];
             hll.ger(wt, &dl, &dl, 1.0);
-            gl.axpy(wt * r, &dl, 1.0);
-            for (a, v) in dg.iter().enumerate() {
-                g[PER_ACCEL * j + a] += wt * v * r;
+            if let Some(g) = g.as_deref_mut() {
+                let r = self.data.outputs[(i, j)] - s.output(&q);
+                gl.axpy(wt * r, &dl, 1.0);
+                for (a, v) in dg.iter().enumerate() {
+                    g[PER_ACCEL * j + a] += wt * v * r;
+                }
             }
             rows.push((j, wt, dl * wt, dg));
         }
         let inv = local_inverse(&hll);
-        let y = inv * gl;
-        for (j, _, wdl, dg) in &rows {
-            let f = wdl.dot(&y);
-            for (a, v) in dg.iter().enumerate() {
-                g[PER_ACCEL * j + a] -= v * f;
+        if let Some(g) = g {
+            let y = inv * gl;
+            for (j, _, wdl, dg) in &rows {
+                let f = wdl.dot(&y);
+                for (a, v) in dg.iter().enumerate() {
+                    g[PER_ACCEL * j + a] -= v * f;
+                }
             }
         }
         let Some(h) = h else { return };
@@ -171,9 +177,8 @@ pub fn reduced_information(s: &TimingSamples) -> DMatrix<f64> {
         .into_par_iter()
         .map(|c| {
             let mut h = DMatrix::zeros(na, na);
-            let mut g = DVector::zeros(na);
             for i in c * CHUNK_SAMPLES..((c + 1) * CHUNK_SAMPLES).min(samples) {
-                s.accumulate(i, Some(&mut h), &mut g);
+                s.accumulate(i, Some(&mut h), None);
             }
             h
         })
@@ -183,16 +188,7 @@ pub fn reduced_information(s: &TimingSamples) -> DMatrix<f64> {
         h += c;
     }
     // The blocks below the diagonal were summed; mirror them above it.
-    let accelerometers = s.sens.len();
-    for a in 0..accelerometers {
-        for b in a + 1..accelerometers {
-            for p in 0..PER_ACCEL {
-                for q in 0..PER_ACCEL {
-                    h[(PER_ACCEL * a + p, PER_ACCEL * b + q)] = h[(PER_ACCEL * b + q, PER_ACCEL * a + p)];
-                }
-            }
-        }
-    }
+    mirror_upper_blocks(&mut h, s.sens.len());
     h
 }
 
@@ -201,7 +197,7 @@ pub fn reduced_information(s: &TimingSamples) -> DMatrix<f64> {
 pub fn reduced_score(s: &TimingSamples, range: std::ops::Range<usize>) -> DVector<f64> {
     let mut g = DVector::zeros(PER_ACCEL * s.sens.len());
     for i in range {
-        s.accumulate(i, None, &mut g);
+        s.accumulate(i, None, Some(&mut g));
     }
     g
 }
