@@ -969,15 +969,7 @@ pub fn cramer_rao(
         // Each sample's timing motion eliminated with its motion.
         let na = PER_ACCEL * n;
         let sens = sensors(array, params);
-        let samples = TimingSamples {
-            sens: &sens,
-            data: d,
-            motion,
-            weights: &weights.dynamic_w,
-            output_w: None,
-            fixed: d.reference_rate_rad_s.is_some(),
-            ages: Some(ages),
-        };
+        let samples = TimingSamples::clocked(&sens, d, motion, &weights.dynamic_w, ages);
         let mut top = normal.h.view_mut((0, 0), (na, na));
         top += reduced_information(&samples);
     }

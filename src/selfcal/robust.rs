@@ -118,13 +118,8 @@ pub fn robust_covariance_with_bread(
     let sens = sensors(array, &fit.params);
     let fixed = dynamic.reference_rate_rad_s.is_some();
     let timing = ages.map(|ages| TimingSamples {
-        sens: &sens,
-        data: dynamic,
-        motion: &fit.motion,
-        weights: &weights.dynamic_w,
         output_w: bread,
-        fixed,
-        ages: Some(ages),
+        ..TimingSamples::clocked(&sens, dynamic, &fit.motion, &weights.dynamic_w, ages)
     });
     let k = match &timing {
         Some(t) => at.inverse_with_dynamic(&reduced_information(t), fit)?,
@@ -191,15 +186,7 @@ pub fn timing_free_sigma_ratios(
     let weights = Weights::stored_in(fit, stat);
     let at = at_solution(array, stat, dynamic, &weights, settings, fit);
     let sens = sensors(array, &fit.params);
-    let samples = TimingSamples {
-        sens: &sens,
-        data: dynamic,
-        motion: &fit.motion,
-        weights: &weights.dynamic_w,
-        output_w: None,
-        fixed: dynamic.reference_rate_rad_s.is_some(),
-        ages: Some(ages),
-    };
+    let samples = TimingSamples::clocked(&sens, dynamic, &fit.motion, &weights.dynamic_w, ages);
     let (held, free) = (at.inverse(&at.normal, fit)?, at.inverse_with_dynamic(&reduced_information(&samples), fit)?);
     Ok((0..na).map(|i| (free[(i, i)] / held[(i, i)]).sqrt()).collect())
 }

@@ -59,7 +59,21 @@ pub struct TimingSamples<'a> {
     pub ages: Option<&'a DMatrix<f64>>,
 }
 
-impl TimingSamples<'_> {
+impl<'a> TimingSamples<'a> {
+    /// A clocked rotation phase's: every sample's timing motion eliminated at `ages`, the rate an
+    /// unknown unless `data` takes it from the gyroscopes, every output at its accelerometer's
+    /// weight.
+    pub fn clocked(
+        sens: &'a [Sensor],
+        data: &'a DynamicData,
+        motion: &'a [SampleMotion],
+        weights: &'a [f64],
+        ages: &'a DMatrix<f64>,
+    ) -> Self {
+        let fixed = data.reference_rate_rad_s.is_some();
+        Self { sens, data, motion, weights, output_w: None, fixed, ages: Some(ages) }
+    }
+
     /// Adds sample `i`'s share of the reduced information (into `h`, when given) and of the
     /// reduced gradient (into `g`, when given: the score, `G^T W r` less its part along the local
     /// design).
