@@ -331,7 +331,12 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
     if let Some(g) = &cal.gyro_check {
         let _ = writeln!(
             s,
-            "gyroscope-free rate against the gyroscopes ({} unclipped samples): RMS difference {:.3} rad/s of {:.2} rad/s RMS ({:.1}%); after the best frame rotation ({:.2e} rad) {:.3} rad/s; median magnitude ratio {:.4}",
+            "gyroscope-free rate{} against the gyroscopes ({} unclipped samples): RMS difference {:.3} rad/s of {:.2} rad/s RMS ({:.1}%); after the best frame rotation ({:.2e} rad) {:.3} rad/s; median magnitude ratio {:.4}",
+            cal.samples_on_another_branch()
+                .map(|n| format!(
+                    " (on the path over its branches: {n} samples moved by more than 3 sigmas from the fit's sign or plane reflection)"
+                ))
+                .unwrap_or_default(),
             g.samples,
             g.rms_rad_s,
             g.rms_reference_rad_s,

@@ -160,7 +160,7 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
                 .iter()
                 .enumerate()
                 .filter(|(_, i)| !rec.gyro_clipped[**i])
-                .map(|(k, &i)| (rec.gyro_rate_rad_s[i][axis] - bias[axis], fit.motion[k].omega_rad_s[axis]))
+                .map(|(k, &i)| (rec.gyro_rate_rad_s[i][axis] - bias[axis], cal.rate_motion()[k].omega_rad_s[axis]))
                 .step_by(3)
                 .collect();
             let mut p =

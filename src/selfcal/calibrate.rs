@@ -11,6 +11,7 @@
 
 use nalgebra::{DMatrix, Vector3};
 
+use super::branch;
 use super::clock::{SampleClock, fit_packages, half_differences};
 use super::data::{DynamicData, StaticData};
 use super::filter::{accelerometer_time_constants, filter_corrected};
@@ -18,7 +19,7 @@ use super::fit::{Fit, FitError, FitSettings, check_solution, fit, fit_from, pool
 use super::huber::{self, HuberSummary};
 use super::lag::{LaggedGyroscopes, rates_behind};
 use super::misfit;
-use super::model::{PER_ACCEL, sensors};
+use super::model::{PER_ACCEL, SampleMotion, Sensor, sensors};
 use super::recording::Recording;
 use super::robust::robust_covariance_with_bread;
 use super::segment::{DetectorSettings, Interval, Segmentation, segment};
@@ -117,6 +118,11 @@ pub struct Calibration {
     pub clocks: Option<ClockEstimate>,
     /// Why declared clocks were not fitted (the fit is then without them).
     pub clock_note: Option<String>,
+    /// Gyroscope-free with the clocks: every dynamic sample's motion with its rate on the path
+    /// over its branches (`selfcal::branch`: the sign and the thin plane's reflection), the rate
+    /// that [`Calibration::rate_motion`] gives and `gyro_check` checks. `fit.motion` stays the
+    /// branch the fit was fitted and its outputs corrected with. `None` otherwise.
+    pub motion_on_path: Option<Vec<SampleMotion>>,
     /// What would make the parameters the recording cannot identify identifiable, in words
     /// (`selfcal::geometry::remedies`); empty when every parameter is identified.
     pub to_identify: Vec<String>,
@@ -131,6 +137,32 @@ pub struct Calibration {
     pub removed_bias_drift: Option<StaticDrift>,
     /// Why a drift asked to be removed was not.
     pub bias_drift_note: Option<String>,
+}
+
+impl Calibration {
+    /// Every dynamic sample's motion with the rate as calibrate reports it: on the path over its
+    /// branches where there is one ([`Calibration::motion_on_path`]), else the fit's.
+    pub fn rate_motion(&self) -> &[SampleMotion] {
+        self.motion_on_path.as_deref().unwrap_or(&self.fit.motion)
+    }
+
+    /// How many dynamic samples the path put on another branch than the fit's: their rate moved
+    /// by more than 3 times the norm of the fitted rate's sigma (a reflection re-solved can come
+    /// back to the fitted basin, a few bits away). `None` without a path.
+    pub fn samples_on_another_branch(&self) -> Option<usize> {
+        let path = self.motion_on_path.as_ref()?;
+        let sigma = &self.fit.omega_sigma_rad_s;
+        Some(
+            path.iter()
+                .zip(&self.fit.motion)
+                .enumerate()
+                .filter(|(k, (a, b))| {
+                    let limit = sigma.get(*k).map_or(0.0, |s| 3.0 * s.norm());
+                    (a.omega_rad_s - b.omega_rad_s).norm() > limit
+                })
+                .count(),
+        )
+    }
 }
 
 /// The static means and pooled per-sample scatter of every interval. An output at or beyond its
@@ -231,8 +263,15 @@ pub fn calibrate(
             reference_rate_rad_s = behind.reference_rate_rad_s;
         }
     }
-    let gyro_check = match (gyro_bias_rad_s, settings.use_gyro, fit.motion.is_empty()) {
-        (Some(b), false, false) => Some(gyro_check(rec, &prepared.index, &fit, &b)),
+    // Gyroscope-free with the clocks: each sample's rate on the path over its branches (its sign
+    // and the thin plane's reflection, `selfcal::branch`); the fit stays as it is.
+    let motion_on_path = match (dynamic, clocks.as_ref()) {
+        (Some(d), Some(c)) if !settings.use_gyro => Some(rates_on_path(array, &fit, d, c)),
+        _ => None,
+    };
+    let rate_motion = motion_on_path.as_deref().unwrap_or(&fit.motion);
+    let gyro_check = match (gyro_bias_rad_s, settings.use_gyro, rate_motion.is_empty()) {
+        (Some(b), false, false) => Some(gyro_check(rec, &prepared.index, rate_motion, &b)),
         _ => None,
     };
     let unidentified = fit.unseen_parameters.iter().any(|&u| u);
@@ -270,6 +309,7 @@ pub fn calibrate(
         reference_rate_rad_s,
         clocks,
         clock_note,
+        motion_on_path,
         to_identify,
     })
 }
@@ -433,9 +473,7 @@ pub fn gyroscope_clocks(
 /// clocks and timing motion (what the fit with clocks was fitted to), and by the anti-alias
 /// filters' term where the array file declares filters (`selfcal::filter`).
 pub fn corrected_dynamic(array: &RecordingArray, fit: &Fit, d: &DynamicData, clocks: &ClockEstimate) -> DynamicData {
-    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.unwrap_or(0)).collect();
-    let sens = sensors(&array.array, &fit.params);
-    let weights: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    let (package_of, sens, weights) = timing_inputs(array, fit);
     let problem = ClockProblem::new(&sens, d, &fit.motion, &weights, &package_of);
     let outputs = problem.corrected(&d.outputs, &clocks.clocks, &clocks.timing);
     DynamicData {
@@ -443,6 +481,22 @@ pub fn corrected_dynamic(array: &RecordingArray, fit: &Fit, d: &DynamicData, clo
         extra_unknowns_per_sample: TIMING_UNKNOWNS_PER_SAMPLE,
         ..d.clone()
     }
+}
+
+/// What a clock problem at `fit` reads: each accelerometer's package, the sensors, and the
+/// outputs' inverse variances in the rotation phase.
+fn timing_inputs(array: &RecordingArray, fit: &Fit) -> (Vec<usize>, Vec<Sensor>, Vec<f64>) {
+    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.unwrap_or(0)).collect();
+    let weights: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    (package_of, sensors(&array.array, &fit.params), weights)
+}
+
+/// A clocked calibration's motion with every sample's rate on the path over its branches
+/// (`selfcal::branch`), `d` the rotation phase as read.
+fn rates_on_path(array: &RecordingArray, fit: &Fit, d: &DynamicData, clocks: &ClockEstimate) -> Vec<SampleMotion> {
+    let (package_of, sens, weights) = timing_inputs(array, fit);
+    let fitted = corrected_dynamic(array, fit, d, clocks);
+    branch::on_path(&sens, d, &fitted, &fit.motion, &weights, &package_of, &clocks.clocks)
 }
 
 /// `outputs` less the anti-alias filters' term at `fit` (unchanged where no filter is declared).
@@ -955,16 +1009,16 @@ pub fn gyro_bias(rec: &Recording, seg: &Segmentation) -> Option<Vector3<f64>> {
     })
 }
 
-fn gyro_check(rec: &Recording, index: &[usize], fit: &Fit, bias: &Vector3<f64>) -> GyroCheck {
+fn gyro_check(rec: &Recording, index: &[usize], motion: &[SampleMotion], bias: &Vector3<f64>) -> GyroCheck {
     // The gyroscopes at the accelerometers' instants, `accelerometer_lag_s` earlier, to first
     // order from the fitted angular acceleration (`selfcal::lag`): the rates compared are the
     // same instant's.
-    let at_accelerometers = rates_behind(rec, index, bias, &fit.motion);
+    let at_accelerometers = rates_behind(rec, index, bias, motion);
     // (dynamic sample, recording row) where no gyroscope clipped
     let used: Vec<(usize, usize)> =
         index.iter().enumerate().filter(|(_, i)| !rec.gyro_clipped[**i]).map(|(k, &i)| (k, i)).collect();
     let pairs: Vec<(Vector3<f64>, Vector3<f64>)> =
-        used.iter().map(|&(k, _)| (fit.motion[k].omega_rad_s, at_accelerometers[k])).collect();
+        used.iter().map(|&(k, _)| (motion[k].omega_rad_s, at_accelerometers[k])).collect();
     let rms = |v: &[(Vector3<f64>, Vector3<f64>)]| {
         let d = (v.iter().map(|(a, b)| (a - b).norm_squared()).sum::<f64>() / v.len().max(1) as f64).sqrt();
         let r = (v.iter().map(|(_, b)| b.norm_squared()).sum::<f64>() / v.len().max(1) as f64).sqrt();
@@ -1005,7 +1059,7 @@ fn gyro_check(rec: &Recording, index: &[usize], fit: &Fit, bias: &Vector3<f64>) 
     let steps = (LAG_SEARCH_S / LAG_STEP_S).round() as i64;
     // (from the gyroscopes as recorded: the search starts at their own instants)
     let raw: Vec<(Vector3<f64>, Vector3<f64>)> =
-        used.iter().map(|&(k, i)| (fit.motion[k].omega_rad_s, rec.gyro_rate_rad_s[i] - bias)).collect();
+        used.iter().map(|&(k, i)| (motion[k].omega_rad_s, rec.gyro_rate_rad_s[i] - bias)).collect();
     let (mut accelerometer_lag_s, mut rms_at_lag_rad_s) = (0.0, rms(&raw).0);
     if dt > 0.0 {
         for step in -steps..=steps {
@@ -1015,7 +1069,7 @@ fn gyro_check(rec: &Recording, index: &[usize], fit: &Fit, bias: &Vector3<f64>) 
                 .iter()
                 .map(|&(k, i)| {
                     let reference = Vector3::from_fn(|a, _| delay.at(&columns[a], i));
-                    (fit.motion[k].omega_rad_s - (reference - bias)).norm_squared()
+                    (motion[k].omega_rad_s - (reference - bias)).norm_squared()
                 })
                 .sum();
             let rms = (ss / used.len().max(1) as f64).sqrt();

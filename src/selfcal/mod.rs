@@ -9,6 +9,7 @@
 //! - [`model`]: parameters, the output model and its derivatives, the gauge;
 //! - [`motion`]: the motion of one sample (rate sign by continuity);
 //! - [`track`]: the motion of every sample of the rotation phase (basins repaired, signed, sigmas);
+//! - [`branch`]: a clocked rotation phase's rate branches (sign, the thin plane's reflection) on a path;
 //! - [`data`]: the two phases' data, shared by the estimator, the tracker and the prediction;
 //! - [`fit`]: the joint estimator and its covariance; [`robust`]: the covariance from the scores' spread
 //!   over blocks of samples (a clocked calibration's); [`huber`]: the weights that keep a clocked
@@ -23,6 +24,7 @@
 //! - [`calibrate`]: the workflow; [`output`]: its JSON; [`assessment`]: what to trust in it.
 
 pub mod assessment;
+pub mod branch;
 pub mod calibrate;
 pub mod clock;
 pub mod data;

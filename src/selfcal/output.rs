@@ -134,6 +134,8 @@ pub fn to_json(cal: &Calibration, rec: &Recording, array: &RecordingArray) -> Va
             "median_magnitude_ratio": num(g.median_magnitude_ratio),
             "accelerometer_lag_s": num(g.accelerometer_lag_s),
             "rms_at_lag_rad_s": num(g.rms_at_lag_rad_s),
+            "rate_on_path": cal.motion_on_path.is_some(),
+            "samples_on_another_branch": cal.samples_on_another_branch(),
             "by_rate": g.by_rate.iter().map(|(lo, hi, c, d, r)| json!({
                 "low_rad_s": lo, "high_rad_s": num(*hi), "samples": c, "rms_rad_s": num(*d), "relative": num(*r)
             })).collect::<Vec<_>>(),

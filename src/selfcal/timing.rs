@@ -368,6 +368,21 @@ impl ClockProblem {
         (parts.iter().map(|p| p.1).sum(), parts.into_iter().map(|p| p.0).collect())
     }
 
+    /// Every sample's misfit with its timing motion refitted, in sample order.
+    pub fn sample_costs(&self, clocks: &[Option<SampleClock>]) -> Vec<f64> {
+        use rayon::prelude::*;
+        (0..self.samples())
+            .into_par_iter()
+            .map_init(
+                || vec![0.0; clocks.len()],
+                |tau, i| {
+                    relative_ages(clocks, self.t_s[i], tau);
+                    self.sample_fit(i, tau).1
+                },
+            )
+            .collect()
+    }
+
     /// The misfit without the timing model (every age zero).
     pub fn cost_without_timing(&self) -> f64 {
         (0..self.samples())

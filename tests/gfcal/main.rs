@@ -18,6 +18,7 @@ mod navigation;
 mod noise;
 mod pose;
 mod protocol;
+mod rate_branches;
 mod recorded;
 mod recorded_generators;
 mod reference;

@@ -1671,7 +1671,7 @@ fn plain_and_robust(array: &RecordingArray, rec: &Recording) -> (Calibration, Ca
 
 /// The gyroscope-free rate against the bias-corrected gyroscopes, % RMS, overall and above 20 rad/s:
 /// the calibration's own check (`GyroCheck`), its rate bands from 20 rad/s up pooled.
-fn rate_off_gyroscopes(cal: &Calibration) -> (f64, f64) {
+pub fn rate_off_gyroscopes(cal: &Calibration) -> (f64, f64) {
     let g = cal.gyro_check.as_ref().expect("the array's gyroscopes are checked");
     let (mut d2, mut r2) = (0.0, 0.0);
     for &(lo, _, count, rms_rad_s, relative) in &g.by_rate {
