@@ -187,7 +187,7 @@ fn simulated_clocks_and_locations_are_recovered_within_their_sigmas() {
             );
         }
         for (k, &i) in cal.dynamic_index.iter().enumerate() {
-            let (est, tru) = (cal.fit.motion[k].omega_rad_s, sim.motion[i].omega_rad_s);
+            let (est, tru) = (cal.rate_motion()[k].omega_rad_s, sim.motion[i].omega_rad_s);
             let s = cal.fit.omega_sigma_rad_s[k];
             for a in 0..3 {
                 z_omega.push((est[a] - tru[a]) / s[a]);

@@ -114,7 +114,7 @@ fn repo() -> std::path::PathBuf {
 pub fn rate_error_percent(cal: &Calibration, sim: &Simulated) -> f64 {
     let (mut e, mut r) = (0.0, 0.0);
     for (k, &i) in cal.dynamic_index.iter().enumerate() {
-        e += (cal.fit.motion[k].omega_rad_s - sim.motion[i].omega_rad_s).norm_squared();
+        e += (cal.rate_motion()[k].omega_rad_s - sim.motion[i].omega_rad_s).norm_squared();
         r += sim.motion[i].omega_rad_s.norm_squared();
     }
     100.0 * (e / r).sqrt()
