@@ -12,9 +12,12 @@
 //! sign and 8.9-10.8% the wrong reflection, and they carried 92-95% of the rate's squared error
 //! against the gyroscopes (`results/mimu4444/EXPECTATIONS.md` (at)-(aw)).
 //!
-//! Here every sample has four branches: the fitted motion `m`, its rate negated, the reflection
-//! through the plane re-solved (`motion::solve` on the outputs the fit fitted), and that one
-//! negated. The path over them minimises, by the Viterbi recursion,
+//! Here every sample has four branches, each solved by least squares (`motion::solve`) on the
+//! outputs corrected to the mean instant by the calibration's clocks: the fitted motion `m`
+//! re-solved from itself, its rate negated, the reflection through the plane re-solved from the
+//! reflected rate, and that one negated (all four alike, so that none wins by what it was fitted
+//! to: the fit's own motion was fitted to Huber's shifted outputs). The path over them
+//! minimises, by the Viterbi recursion,
 //!
 //! ```text
 //! sum_i c_i(b_i) / 2  +  sum_(i, i-1 in a run) |w_i - w_(i-1) - (alpha_i + alpha_(i-1)) dt / 2|^2 / (2 s^2)
@@ -55,8 +58,11 @@ pub fn thinnest_direction(sensors: &[Sensor]) -> Vector3<f64> {
     eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned()
 }
 
-/// Every sample's four branches (see the module docs), the reflection re-solved on `fitted`
-/// (the outputs the fit fitted, corrected to the mean instant).
+/// Every sample's four branches (see the module docs), each solved on `fitted` (the outputs
+/// corrected to the mean instant) by the same least squares: the fitted motion re-solved from
+/// itself and the reflection from the reflected rate. (The fit's own motion may have been fitted
+/// to other outputs, Huber's shifted ones: scored beside a least-squares re-solve it would lose
+/// for that alone.)
 pub fn branches(
     sensors: &[Sensor],
     fitted: &DynamicData,
@@ -74,8 +80,9 @@ pub fn branches(
             let start = SampleMotion { omega_rad_s: w - normal * (2.0 * w.dot(&normal)), ..*m };
             let outputs: Vec<f64> = (0..n).map(|j| fitted.outputs[(i, j)]).collect();
             let data = SampleData { outputs: &outputs, used: &fitted.used[i * n..(i + 1) * n], weights };
+            let (fitted_branch, _) = solve(sensors, &data, *m, false);
             let (reflected, _) = solve(sensors, &data, start, false);
-            [*m, negated(m), reflected, negated(&reflected)]
+            [fitted_branch, negated(&fitted_branch), reflected, negated(&reflected)]
         })
         .collect()
 }
@@ -155,7 +162,9 @@ pub fn path(
         score = next;
     }
     let mut chosen = vec![0usize; n];
-    chosen[n - 1] = (0..BRANCHES).min_by(|a, b| score[*a].total_cmp(&score[*b]))?;
+    // A score that is not a number (a branch whose misfit is not) is never the least.
+    let key = |b: usize| if score[b].is_nan() { f64::INFINITY } else { score[b] };
+    chosen[n - 1] = (0..BRANCHES).min_by(|a, b| key(*a).total_cmp(&key(*b)))?;
     for k in (1..n).rev() {
         chosen[k - 1] = back[k][chosen[k]];
     }
@@ -163,8 +172,9 @@ pub fn path(
 }
 
 /// The motion of every sample on the path (module docs): `raw` the rotation phase's outputs as
-/// read, `fitted` the outputs the fit fitted (corrected to the mean instant), `motion` the fit's.
-/// The motion as it is where the path has nothing to weigh.
+/// read, `fitted` the outputs corrected to the mean instant by the calibration's clocks, `motion`
+/// the fit's. `None` where the path has nothing to weigh (no step inside a run, or no spread of
+/// the steps' mismatches) or the data do not match the motion.
 #[allow(clippy::too_many_arguments)]
 pub fn on_path(
     sensors: &[Sensor],
@@ -174,16 +184,14 @@ pub fn on_path(
     weights: &[f64],
     package_of: &[usize],
     clocks: &[Option<SampleClock>],
-) -> Vec<SampleMotion> {
+) -> Option<Vec<SampleMotion>> {
     if motion.len() != raw.samples() || motion.len() != fitted.samples() {
-        return motion.to_vec();
+        return None;
     }
     let candidates = branches(sensors, fitted, motion, weights);
     let costs = timing_costs(sensors, raw, &candidates, weights, package_of, clocks);
-    match path(&raw.t_s, &raw.run_starts, &candidates, &costs) {
-        Some(chosen) => candidates.iter().zip(&chosen).map(|(c, &b)| c[b]).collect(),
-        None => motion.to_vec(),
-    }
+    let chosen = path(&raw.t_s, &raw.run_starts, &candidates, &costs)?;
+    Some(candidates.iter().zip(&chosen).map(|(c, &b)| c[b]).collect())
 }
 
 #[cfg(test)]

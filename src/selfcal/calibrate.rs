@@ -266,7 +266,7 @@ pub fn calibrate(
     // Gyroscope-free with the clocks: each sample's rate on the path over its branches (its sign
     // and the thin plane's reflection, `selfcal::branch`); the fit stays as it is.
     let motion_on_path = match (dynamic, clocks.as_ref()) {
-        (Some(d), Some(c)) if !settings.use_gyro => Some(rates_on_path(array, &fit, d, c)),
+        (Some(d), Some(c)) if !settings.use_gyro => rates_on_path(array, &fit, d, c),
         _ => None,
     };
     let rate_motion = motion_on_path.as_deref().unwrap_or(&fit.motion);
@@ -493,7 +493,12 @@ fn timing_inputs(array: &RecordingArray, fit: &Fit) -> (Vec<usize>, Vec<Sensor>,
 
 /// A clocked calibration's motion with every sample's rate on the path over its branches
 /// (`selfcal::branch`), `d` the rotation phase as read.
-fn rates_on_path(array: &RecordingArray, fit: &Fit, d: &DynamicData, clocks: &ClockEstimate) -> Vec<SampleMotion> {
+fn rates_on_path(
+    array: &RecordingArray,
+    fit: &Fit,
+    d: &DynamicData,
+    clocks: &ClockEstimate,
+) -> Option<Vec<SampleMotion>> {
     let (package_of, sens, weights) = timing_inputs(array, fit);
     let fitted = corrected_dynamic(array, fit, d, clocks);
     branch::on_path(&sens, d, &fitted, &fit.motion, &weights, &package_of, &clocks.clocks)
