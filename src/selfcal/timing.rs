@@ -352,11 +352,10 @@ impl ClockProblem {
         (u, cost)
     }
 
-    /// The misfit over `rows` with the timing motion refitted at every sample, and the motions.
-    pub fn cost(&self, clocks: &[Option<SampleClock>], rows: Range<usize>) -> (f64, Vec<Vector6<f64>>) {
+    /// Each sample's timing motion and misfit over `rows`, in sample order.
+    fn sample_fits(&self, clocks: &[Option<SampleClock>], rows: Range<usize>) -> Vec<(Vector6<f64>, f64)> {
         use rayon::prelude::*;
-        let parts: Vec<(Vector6<f64>, f64)> = rows
-            .into_par_iter()
+        rows.into_par_iter()
             .map_init(
                 || vec![0.0; clocks.len()],
                 |tau, i| {
@@ -364,23 +363,18 @@ impl ClockProblem {
                     self.sample_fit(i, tau)
                 },
             )
-            .collect();
+            .collect()
+    }
+
+    /// The misfit over `rows` with the timing motion refitted at every sample, and the motions.
+    pub fn cost(&self, clocks: &[Option<SampleClock>], rows: Range<usize>) -> (f64, Vec<Vector6<f64>>) {
+        let parts = self.sample_fits(clocks, rows);
         (parts.iter().map(|p| p.1).sum(), parts.into_iter().map(|p| p.0).collect())
     }
 
     /// Every sample's misfit with its timing motion refitted, in sample order.
     pub fn sample_costs(&self, clocks: &[Option<SampleClock>]) -> Vec<f64> {
-        use rayon::prelude::*;
-        (0..self.samples())
-            .into_par_iter()
-            .map_init(
-                || vec![0.0; clocks.len()],
-                |tau, i| {
-                    relative_ages(clocks, self.t_s[i], tau);
-                    self.sample_fit(i, tau).1
-                },
-            )
-            .collect()
+        self.sample_fits(clocks, 0..self.samples()).into_iter().map(|p| p.1).collect()
     }
 
     /// The misfit without the timing model (every age zero).
