@@ -349,7 +349,7 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
             s,
             "  with the gyroscopes delayed by the accelerometers' best lag ({:.1} ms, searched over +-{:.0} ms): RMS difference {:.3} rad/s",
             g.accelerometer_lag_s * 1e3,
-            gfcal::selfcal::calibrate::LAG_SEARCH_S * 1e3,
+            gfcal::selfcal::gyro_check::LAG_SEARCH_S * 1e3,
             g.rms_at_lag_rad_s
         );
     }

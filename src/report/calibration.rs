@@ -141,7 +141,7 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
         page.text(&format!(
             "With the gyroscopes' rate delayed by the accelerometers' best lag, {:.1} ms (a band-limited fractional delay, searched over +-{:.0} ms in 0.1 ms steps): RMS difference {} rad/s.",
             g.accelerometer_lag_s * 1e3,
-            crate::selfcal::calibrate::LAG_SEARCH_S * 1e3,
+            crate::selfcal::gyro_check::LAG_SEARCH_S * 1e3,
             significant(g.rms_at_lag_rad_s, 3)
         ));
         let rows: Vec<(Vec<String>, bool)> = g

@@ -21,17 +21,21 @@
 //! - [`misfit`]: the rotation phase's chi^2/dof, one metric for calibrate and diagnose;
 //! - [`tension`]: the static phase refitted alone, against the joint fit; [`static_drift`]: the
 //!   static phase refitted with a bias drift in time, and its test;
+//! - [`clocked`]: the packages' sample clocks fitted with the calibration (its outer iterations);
+//! - [`gyro_check`]: the gyroscope-free rate against the reference gyroscopes;
 //! - [`calibrate`]: the workflow; [`output`]: its JSON; [`assessment`]: what to trust in it.
 
 pub mod assessment;
 pub mod branch;
 pub mod calibrate;
 pub mod clock;
+pub mod clocked;
 pub mod data;
 pub mod drift;
 pub mod filter;
 pub mod fit;
 pub mod geometry;
+pub mod gyro_check;
 pub mod huber;
 pub mod lag;
 pub mod misfit;

@@ -218,7 +218,7 @@ pub fn predict_with_state(
     };
     let fitted = 2.0 * poses as f64 + refitted as f64;
     let prepared = if use_gyro {
-        prepare_dynamic(rec, &seg, true, super::calibrate::gyro_bias(rec, &seg))
+        prepare_dynamic(rec, &seg, true, super::gyro_check::gyro_bias(rec, &seg))
     } else {
         prepare_dynamic(rec, &seg, false, None)
     };
@@ -231,7 +231,7 @@ pub fn predict_with_state(
     };
     // With the accelerometers lagging the gyroscopes, the rate refined to first order from the
     // tracked angular acceleration and the motion tracked again (as `calibrate` refits).
-    if let (Some(d), Some(b)) = (prepared.data.as_mut(), super::calibrate::gyro_bias(rec, &seg))
+    if let (Some(d), Some(b)) = (prepared.data.as_mut(), super::gyro_check::gyro_bias(rec, &seg))
         && use_gyro
         && rec.accelerometer_lag_s != 0.0
         && motion.len() == prepared.index.len()

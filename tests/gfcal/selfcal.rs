@@ -469,7 +469,8 @@ fn a_refit_whose_solution_is_checked_at_the_end_equals_one_checked_at_once() {
 /// warm refit from the capped fit 0.1 sigma): the calibration must be the uncapped fit, bit for bit.
 #[test]
 fn a_clocked_array_whose_clocks_are_not_resolved_gets_the_uncapped_fit() {
-    use gfcal::selfcal::calibrate::{CLOCKED_START_ITERATIONS, prepare_dynamic};
+    use gfcal::selfcal::calibrate::prepare_dynamic;
+    use gfcal::selfcal::clocked::CLOCKED_START_ITERATIONS;
     use gfcal::selfcal::fit::{FitSettings, fit};
     let text = std::fs::read_to_string(repo().join("configs/arrays/mimu4444_corners.toml")).expect("array file");
     // Without the gyroscopes, and without the accelerometers' lag behind them (refused without them).

@@ -93,8 +93,9 @@ fn with_the_new_physics_off_the_generator_is_unchanged_bit_for_bit() {
 use gfcal::array::wiring::RecordingArray;
 use gfcal::mc::config::McConfig;
 use gfcal::mc::protocol::ProtocolCell;
-use gfcal::selfcal::calibrate::{CalibrateSettings, Calibration, calibrate, corrected_dynamic, prepare_dynamic};
+use gfcal::selfcal::calibrate::{CalibrateSettings, Calibration, calibrate, prepare_dynamic};
 use gfcal::selfcal::clock::SampleClock;
+use gfcal::selfcal::clocked::corrected_dynamic;
 use gfcal::selfcal::drift::BiasDriftSpread;
 use gfcal::selfcal::model::{PER_ACCEL, SensorSet, sensors};
 use gfcal::selfcal::recording::Recording;

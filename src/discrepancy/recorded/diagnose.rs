@@ -44,10 +44,11 @@ use super::sensing::sensing_points;
 use super::trial::{HeldOutNormal, try_effects};
 use crate::array::wiring::RecordingArray;
 use crate::selfcal::calibrate::{
-    CalibrateSettings, Calibration, bias_drift_taken_out, calibrate, corrected_dynamic, gyroscope_clocks,
-    prepare_dynamic, with_removed_drift,
+    CalibrateSettings, Calibration, bias_drift_taken_out, calibrate, gyroscope_clocks, prepare_dynamic,
+    with_removed_drift,
 };
 use crate::selfcal::clock::SampleClock;
+use crate::selfcal::clocked::corrected_dynamic;
 use crate::selfcal::misfit;
 use crate::selfcal::model::{PER_ACCEL, sensors};
 use crate::selfcal::predict::{HeldOut, HeldOutState, Refit, predict_as_fitted, predict_with_state};
