@@ -123,7 +123,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
             .map_err(|e| calibrate_error(e, other, &array, &settings.detector))?;
         held_results.push((other.path.clone(), h));
     }
-    print!("{}", summary_text(&cal, &rec, elapsed_s, &held_results));
+    print!("{}", summary_text(&cal, &rec, elapsed_s, &held_results, a.detector.min_dynamic_s));
     let json = gfcal::selfcal::output::to_json_with(&cal, &rec, &array, &held_results, elapsed_s, &started_utc);
     let text = match a.json {
         Some(_) => serde_json::to_string_pretty(&json).context("cannot format the JSON")?,
@@ -139,7 +139,13 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
     super::outputs::write_all(&files)
 }
 
-fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(PathBuf, HeldOut)]) -> String {
+fn summary_text(
+    cal: &Calibration,
+    rec: &Recording,
+    elapsed_s: f64,
+    held: &[(PathBuf, HeldOut)],
+    min_dynamic_s: f64,
+) -> String {
     use std::fmt::Write;
     let fit = &cal.fit;
     let seg = &cal.segmentation;
@@ -286,9 +292,19 @@ fn summary_text(cal: &Calibration, rec: &Recording, elapsed_s: f64, held: &[(Pat
         let _ = writeln!(s, "sample clocks declared but not fitted: {note}");
     }
     if !fit.locations_identified {
+        // Why there is no rotation phase, where the segmentation kept none: a moving run too short.
+        let seg = &cal.segmentation;
+        let why = if seg.dynamic_intervals.is_empty() && !seg.from_step_column && seg.short_moving_runs > 0 {
+            format!(
+                " (the segmentation kept no rotation run: the longest moving run lasts {:.1} s, shorter than --min-dynamic-s {} s)",
+                seg.longest_moving_s, min_dynamic_s
+            )
+        } else {
+            String::new()
+        };
         let _ = writeln!(
             s,
-            "no dynamic phase: the locations (dx, dy, dz of every accelerometer) are not identifiable from static poses and are left at nominal"
+            "no dynamic phase{why}: the locations (dx, dy, dz of every accelerometer) are not identifiable from static poses and are left at nominal"
         );
     }
     if !fit.unseen.is_empty() {

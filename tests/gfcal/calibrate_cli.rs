@@ -163,6 +163,18 @@ fn a_recording_without_rotation_calibrates_what_static_poses_identify_and_names_
         assert!(d["move_rms_sigma"][k].is_f64() && d["sigma_over_printed"][k].is_f64(), "{k}: {d}");
     }
     assert!(out.contains("static phase refitted with a bias drift in time"), "{out}");
+
+    // A rotation shorter than --min-dynamic-s (10 s by default) is no rotation phase, and the
+    // summary says so, with the length the segmentation found.
+    let (o, _rec, _json, _dir) = calibrate(&simulated_rows(&mimu_array(), 10, 6.0), &[]);
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let why = "no dynamic phase (the segmentation kept no rotation run: the longest moving run lasts ";
+    let at = out.find(why).unwrap_or_else(|| panic!("{out}"));
+    let rest = &out[at + why.len()..];
+    let longest_s: f64 = rest.split(' ').next().and_then(|v| v.parse().ok()).unwrap_or(f64::NAN);
+    assert!((5.0..10.0).contains(&longest_s), "{longest_s} s: {out}");
+    assert!(rest.starts_with(&format!("{longest_s:.1} s, shorter than --min-dynamic-s 10 s)")), "{out}");
 }
 
 #[test]
