@@ -292,12 +292,20 @@ fn summary_text(
         let _ = writeln!(s, "sample clocks declared but not fitted: {note}");
     }
     if !fit.locations_identified {
-        // Why there is no rotation phase, where the segmentation kept none: a moving run too short.
+        // Why there is no rotation phase, in the segmentation's facts: no moving run long enough (the
+        // longest's length, rounded down, so that it never reads as the limit), or rotation runs
+        // without a usable sample.
         let seg = &cal.segmentation;
-        let why = if seg.dynamic_intervals.is_empty() && !seg.from_step_column && seg.short_moving_runs > 0 {
+        let why = if !seg.dynamic_intervals.is_empty() {
             format!(
-                " (the segmentation kept no rotation run: the longest moving run lasts {:.1} s, shorter than --min-dynamic-s {} s)",
-                seg.longest_moving_s, min_dynamic_s
+                " (the segmentation's {} rotation run(s) have no sample with enough unclipped outputs)",
+                seg.dynamic_intervals.len()
+            )
+        } else if !seg.from_step_column && seg.short_moving_runs > 0 {
+            format!(
+                " (no moving run lasts --min-dynamic-s {} s; the longest lasts {:.1} s)",
+                min_dynamic_s,
+                (seg.longest_moving_s * 10.0).floor() / 10.0
             )
         } else {
             String::new()

@@ -416,7 +416,7 @@ pub(super) fn estimate_clocks(
 }
 
 /// Gauss-Newton iterations a round of the fit without the clocks, where that fit only starts the
-/// clocks' refits ([`calibrate`]).
+/// clocks' refits ([`calibrate`](super::calibrate::calibrate)).
 pub const CLOCKED_START_ITERATIONS: usize = 3;
 
 /// Gauss-Newton iterations a round of each of Huber's refits. Huber's iterations are what

@@ -55,7 +55,7 @@ pub fn gyro_bias(rec: &Recording, seg: &Segmentation) -> Option<Vector3<f64>> {
 
 /// The gyroscope-free rate `motion` (at the dynamic samples `index` of `rec`) against the
 /// reference gyroscopes less `bias` (see [`GyroCheck`]).
-pub fn gyro_check(rec: &Recording, index: &[usize], motion: &[SampleMotion], bias: &Vector3<f64>) -> GyroCheck {
+pub(super) fn gyro_check(rec: &Recording, index: &[usize], motion: &[SampleMotion], bias: &Vector3<f64>) -> GyroCheck {
     // The gyroscopes at the accelerometers' instants, `accelerometer_lag_s` earlier, to first
     // order from the fitted angular acceleration (`selfcal::lag`): the rates compared are the
     // same instant's.
