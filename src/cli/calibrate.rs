@@ -390,6 +390,13 @@ fn summary_text(
             h.dynamic_noise_rms_m_s2,
             h.dynamic_chi2_dof
         );
+        if let Some(share) = h.own_clocks_share_removed {
+            let _ = writeln!(
+                s,
+                "  its own gyroscopes' clocks (a recording's clocks are its own) remove {:.1}% of that rotation-phase misfit (each sample's motion refitted with the timing model); what they leave is what this calibration does not carry over",
+                100.0 * share
+            );
+        }
     }
     let _ = writeln!(s, "assessment:");
     for v in gfcal::selfcal::output::verdicts(cal, held) {

@@ -20,7 +20,11 @@
 //! a rotation phase, or one with a share in a combination the Fisher information cannot see beyond
 //! the gauge) has `value` and `sigma` null and is named in `unidentified`; the combinations are in
 //! `unseen_combinations: [{combination, components: [{parameter, weight}]}]` and what would make
-//! them identifiable in `to_identify` (a list of sentences).
+//! them identifiable in `to_identify` (a list of sentences). With `--held-out`, `held_out:
+//! [{recording, static_intervals, static_residual_rms_m_s2, static_noise_rms_m_s2, static_chi2_dof,
+//! dynamic_samples, dynamic_residual_rms_m_s2, dynamic_noise_rms_m_s2, dynamic_chi2_dof,
+//! bias_drift_removed, own_clocks_share_removed}]` (`selfcal::predict::HeldOut`; the last null
+//! without declared sample clocks).
 
 use std::path::{Path, PathBuf};
 
@@ -307,5 +311,6 @@ pub fn held_out_json(path: &Path, h: &HeldOut) -> Value {
         "dynamic_noise_rms_m_s2": num(h.dynamic_noise_rms_m_s2),
         "dynamic_chi2_dof": num(h.dynamic_chi2_dof),
         "bias_drift_removed": h.bias_drift_removed,
+        "own_clocks_share_removed": h.own_clocks_share_removed.map(num),
     })
 }

@@ -6,12 +6,14 @@
 use nalgebra::Vector3;
 
 use super::calibrate::{
-    CalibrateError, CalibrateSettings, Calibration, bias_drift_taken_out, prepare_dynamic, static_data,
+    CalibrateError, CalibrateSettings, Calibration, bias_drift_taken_out, gyroscope_clocks, prepare_dynamic,
+    static_data,
 };
 use super::data::{DynamicData, StaticData};
 use super::model::{SampleMotion, SensorSet, sensors};
 use super::recording::Recording;
 use super::segment::{DetectorSettings, segment};
+use super::timing::ClockProblem;
 use super::track;
 use crate::array::Array;
 use crate::array::wiring::RecordingArray;
@@ -37,6 +39,14 @@ pub struct HeldOut {
     /// Whether the recording's own bias drift in time was taken out before the prediction
     /// ([`predict_held_out`]).
     pub bias_drift_removed: bool,
+    /// Where the array file declares sample clocks ([`predict_held_out`]): the share of the
+    /// rotation phase's weighted misfit that the timing model removes with the recording's own
+    /// gyroscopes' clocks, each sample's motion refitted with it
+    /// (`timing::ClockProblem::share_removed_motion_refitted`). A recording's clocks are its
+    /// own (their phases and common rate differ between recordings), so the misfit above is the
+    /// prediction without them; what this share leaves is what the calibration does not carry
+    /// over. `None` without declared clocks, or where the recording does not resolve them.
+    pub own_clocks_share_removed: Option<f64>,
 }
 
 /// What a held-out recording refits besides the motion.
@@ -101,9 +111,10 @@ pub fn predict_held_out(
     settings: &CalibrateSettings,
 ) -> Result<HeldOut, CalibrateError> {
     let as_fitted = |rec: &Recording| {
-        predict_as_fitted(&array.array, cal, rec, &settings.detector, settings.fit.gravity_m_s2, Refit::Pose)
-            .map(|(h, _)| h)
-            .map_err(CalibrateError::from)
+        let (mut held, state) =
+            predict_as_fitted(&array.array, cal, rec, &settings.detector, settings.fit.gravity_m_s2, Refit::Pose)?;
+        held.own_clocks_share_removed = own_clocks_share_removed(array, cal, rec, &state, settings);
+        Ok::<HeldOut, CalibrateError>(held)
     };
     if !settings.remove_bias_drift {
         return as_fitted(rec);
@@ -112,6 +123,30 @@ pub fn predict_held_out(
     let mut held = as_fitted(&corrected)?;
     held.bias_drift_removed = drift.is_ok();
     Ok(held)
+}
+
+/// [`HeldOut::own_clocks_share_removed`] of `rec` predicted as `state` (with `cal`'s weights):
+/// its packages' clocks from its own gyroscopes (`calibrate::gyroscope_clocks`, as `gfcal
+/// diagnose` scores its held-out recordings' own clocks).
+fn own_clocks_share_removed(
+    array: &RecordingArray,
+    cal: &Calibration,
+    rec: &Recording,
+    state: &HeldOutState,
+    settings: &CalibrateSettings,
+) -> Option<f64> {
+    if !array.has_sample_clocks() {
+        return None;
+    }
+    let d = state.dynamic.as_ref().filter(|d| d.samples() > 0 && d.samples() == state.motion.len())?;
+    let clocks = gyroscope_clocks(rec, array, settings).ok()?;
+    let weights: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.unwrap_or(0)).collect();
+    let sens = sensors(&array.array, &state.params);
+    let problem = ClockProblem::new(&sens, d, &state.motion, &weights, &package_of);
+    let rate_given = d.reference_rate_rad_s.is_some();
+    let (share, _) = problem.share_removed_motion_refitted(&sens, &state.motion, rate_given, &clocks, &[]);
+    share.is_finite().then_some(share)
 }
 
 /// Predicts `rec` with `params`, refitting what `refit` says.
@@ -277,6 +312,7 @@ pub fn predict_with_state(
         dynamic_noise_rms_m_s2: dyn_noise,
         dynamic_chi2_dof: dyn_chi2_dof,
         bias_drift_removed: false,
+        own_clocks_share_removed: None,
     };
     let state = HeldOutState { params, stat, static_t_s, up, dynamic: prepared.data, motion, t_mid_s };
     Ok((held, state))

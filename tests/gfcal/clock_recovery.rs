@@ -278,6 +278,51 @@ fn the_diagnosis_names_sample_clock_with_the_clocks_and_nothing_without() {
     assert!(why.contains("no sawtooth"), "{why}");
 }
 
+/// `gfcal calibrate --held-out` on a clocked array scores each held-out recording's rotation
+/// phase with its own gyroscopes' clocks (`selfcal::predict::HeldOut::own_clocks_share_removed`):
+/// a recording's clocks are its own, so without them the held-out misfit says nothing of the
+/// calibration. Against the generator (thresholds written before the first run): a second
+/// recording of the same board (its own clocks' phases and noise) has at least 80% of its
+/// misfit removed, within 0.1 of the share the fitting recording's own clocks remove; the same
+/// held-out recording simulated without clocks (every package read at the host's instants) at
+/// most 50% (six unknowns more a sample take about 6 of the 15 degrees of freedom the motion
+/// leaves of a white misfit); an array without declared clocks has no share.
+#[test]
+fn a_held_out_recording_is_scored_with_its_own_clocks() {
+    use gfcal::selfcal::predict::predict_held_out;
+    let (cell, fitting) = short_clocked_recording(7);
+    let array = &cell.array;
+    let truth = config_truth(array, 7);
+    let settings = CalibrateSettings::default();
+    let cal = calibrate(&fitting.recording, array, &settings).expect("calibrates");
+    let own = cal.clocks.as_ref().expect("clocks fitted").share_removed;
+    let held = simulate(array, &truth, &cell.protocol, &mut trial_rng(7, 2)).expect("simulated");
+    let mut off = cell.protocol.clone();
+    off.clocks = None;
+    let unclocked = simulate(array, &truth, &off, &mut trial_rng(7, 2)).expect("simulated");
+    let with = predict_held_out(array, &cal, &held.recording, &settings).expect("predicts");
+    let without = predict_held_out(array, &cal, &unclocked.recording, &settings).expect("predicts");
+    let (with_share, without_share) = (
+        with.own_clocks_share_removed.expect("a share with clocks"),
+        without.own_clocks_share_removed.expect("a share: the gyroscopes' clocks are read all the same"),
+    );
+    eprintln!(
+        "the fitting recording's own clocks remove {own:.3}; a held-out recording's {with_share:.3} (residual {:.3} m/s^2 before them), without clocks {without_share:.3}",
+        with.dynamic_residual_rms_m_s2
+    );
+    assert!(with_share >= 0.8 && (with_share - own).abs() <= 0.1, "held out {with_share}, fitting {own}");
+    assert!(without_share <= 0.5, "without clocks {without_share}");
+    let mut plain = array.clone();
+    for p in plain.packages.iter_mut() {
+        p.sample_clock_hz = None;
+        p.sample_and_hold = false;
+    }
+    assert!(!plain.has_sample_clocks());
+    let cal_plain = calibrate(&fitting.recording, &plain, &settings).expect("calibrates");
+    let none = predict_held_out(&plain, &cal_plain, &held.recording, &settings).expect("predicts");
+    assert_eq!(none.own_clocks_share_removed, None);
+}
+
 /// A short recording of the matched protocol with the board's clocks: 6 poses (the fewest a
 /// calibration with a rotation phase takes) and 30 s of rotation, truth and noise from `seed`.
 fn short_clocked_recording(seed: u64) -> (gfcal::mc::protocol::ProtocolCell, gfcal::selfcal::simulate::Simulated) {
