@@ -200,37 +200,42 @@ pub fn render_page(cal: &Calibration, rec: &Recording, array: &RecordingArray, h
     }
     if !held.is_empty() {
         page.heading(2, "Held-out recordings");
+        // Where the array declares sample clocks: the share of each held-out rotation phase's misfit
+        // that its own gyroscopes' clocks remove (`selfcal::predict::HeldOut`).
+        let clocked = held.iter().any(|(_, h)| h.own_clocks_share_removed.is_some());
         let rows: Vec<(Vec<String>, bool)> = held
             .iter()
             .map(|(p, h)| {
-                (
-                    vec![
-                        p.display().to_string(),
-                        h.static_intervals.to_string(),
-                        significant(h.static_residual_rms_m_s2, 3),
-                        significant(h.static_noise_rms_m_s2, 3),
-                        format!("{:.1}", h.static_chi2_dof),
-                        h.dynamic_samples.to_string(),
-                        significant(h.dynamic_residual_rms_m_s2, 3),
-                        significant(h.dynamic_noise_rms_m_s2, 3),
-                    ],
-                    false,
-                )
+                let mut row = vec![
+                    p.display().to_string(),
+                    h.static_intervals.to_string(),
+                    significant(h.static_residual_rms_m_s2, 3),
+                    significant(h.static_noise_rms_m_s2, 3),
+                    format!("{:.1}", h.static_chi2_dof),
+                    h.dynamic_samples.to_string(),
+                    significant(h.dynamic_residual_rms_m_s2, 3),
+                    significant(h.dynamic_noise_rms_m_s2, 3),
+                ];
+                if clocked {
+                    row.push(h.own_clocks_share_removed.map_or("-".into(), |v| format!("{:.1}%", 100.0 * v)));
+                }
+                (row, false)
             })
             .collect();
-        page.table(
-            &[
-                "recording",
-                "static intervals",
-                "static residual RMS (m/s^2)",
-                "static noise RMS (m/s^2)",
-                "static chi2/dof",
-                "dynamic samples",
-                "dynamic residual RMS (m/s^2)",
-                "noise RMS (m/s^2)",
-            ],
-            &rows,
-        );
+        let mut header = vec![
+            "recording",
+            "static intervals",
+            "static residual RMS (m/s^2)",
+            "static noise RMS (m/s^2)",
+            "static chi2/dof",
+            "dynamic samples",
+            "dynamic residual RMS (m/s^2)",
+            "noise RMS (m/s^2)",
+        ];
+        if clocked {
+            header.push("its own clocks remove (of the dynamic misfit)");
+        }
+        page.table(&header, &rows);
     }
     page.heading(2, "Segmentation");
     let t = &rec.t_s;

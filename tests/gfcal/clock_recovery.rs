@@ -312,6 +312,17 @@ fn a_held_out_recording_is_scored_with_its_own_clocks() {
     );
     assert!(with_share >= 0.8 && (with_share - own).abs() <= 0.1, "held out {with_share}, fitting {own}");
     assert!(without_share <= 0.5, "without clocks {without_share}");
+    // The report's held-out table carries the share.
+    let page = gfcal::report::calibration::render_page(
+        &cal,
+        &fitting.recording,
+        array,
+        &[(std::path::PathBuf::from("held.csv"), with.clone())],
+    );
+    assert!(
+        page.contains("its own clocks remove") && page.contains(&format!("{:.1}%", 100.0 * with_share)),
+        "the report's held-out table"
+    );
     let mut plain = array.clone();
     for p in plain.packages.iter_mut() {
         p.sample_clock_hz = None;
