@@ -24,7 +24,8 @@
 //! [{recording, static_intervals, static_residual_rms_m_s2, static_noise_rms_m_s2, static_chi2_dof,
 //! dynamic_samples, dynamic_residual_rms_m_s2, dynamic_noise_rms_m_s2, dynamic_chi2_dof,
 //! bias_drift_removed, own_clocks_share_removed}]` (`selfcal::predict::HeldOut`; the last null
-//! without declared sample clocks).
+//! without declared sample clocks, and where the held-out recording has no rotation phase, no
+//! gyroscope in every package, or clocks its gyroscopes do not resolve).
 
 use std::path::{Path, PathBuf};
 
