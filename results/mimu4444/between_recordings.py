@@ -9,7 +9,9 @@ accelerometer (in units of the accelerometer's printed sigma, RMS over the six):
   `sample_clocks[].rate_offset_ppm`: a covariate from the clocks, not from these parameters), regressed per
   accelerometer, with its permutation p over the 720 orderings of the recordings, and over recordings 1-5 alone;
 - the real spread over the predicted sigma (the Cramer-Rao sigma of protocol_run/summary.csv, median over the 24)
-  before and after that regression (4 degrees of freedom left).
+  before and after that regression (4 degrees of freedom left);
+- leaving one recording out, the line through the other five against their median as a prediction of its values
+  (EXPECTATIONS.md (bj)).
 
     python3 results/mimu4444/between_recordings.py > results/mimu4444/between_recordings.md
                                                    (repository root; needs numpy)
@@ -85,3 +87,23 @@ for name in KINDS:
         f"{permutation_p(values, common):.3f} | {share5:.2f} | {permutation_p(values[:5], common[:5]):.3f} | "
         f"{before:.1f} | {after:.1f} |"
     )
+
+# Leave one recording out (EXPECTATIONS.md (bj)): each accelerometer's value predicted at the left-out recording's
+# common clock rate by the line through the other five, against the median of the other five; RMS over the 24 of
+# the error in the left-out recording's printed sigmas.
+print("\nLeave one recording out: the error of the common-rate line's prediction against the median of the other "
+      "five, in the left-out recording's printed sigmas (RMS over the 24 accelerometers).\n")
+print("| kind | " + " | ".join(f"recording {k}: line / median" for k in range(1, len(J) + 1)) + " |")
+print("|---|" + "---|" * len(J))
+for name in ["bias", "tilt_w", "scale_factor"]:
+    values, sigma = matrix(name, "value"), matrix(name, "sigma")
+    cells = []
+    for k in range(len(J)):
+        rest = [i for i in range(len(J)) if i != k]
+        x = np.column_stack([np.ones(len(rest)), common[rest] - common[rest].mean()])
+        beta = np.linalg.lstsq(x, values[rest], rcond=None)[0]
+        line = beta[0] + beta[1] * (common[k] - common[rest].mean())
+        median = np.median(values[rest], axis=0)
+        err = lambda p: np.sqrt(np.mean(((p - values[k]) / sigma[k]) ** 2))
+        cells.append(f"{err(line):.1f} / {err(median):.1f}")
+    print(f"| {name} | " + " | ".join(cells) + " |")
