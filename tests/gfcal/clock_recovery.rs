@@ -288,7 +288,8 @@ fn the_diagnosis_names_sample_clock_with_the_clocks_and_nothing_without() {
 /// most 50% (six unknowns more a sample take about 6 of the 15 degrees of freedom the motion
 /// leaves of a white misfit); an array without declared clocks has no share. With the held-out
 /// recording's bias drift taken out first (`gfcal calibrate`'s default, on a held-out recording
-/// with 10 poses, enough for the drift's fit) the share moves by at most 0.02.
+/// with 10 poses, enough for the drift's fit) the share moves by at most 0.02; with `--use-gyro`
+/// the held-out share meets the same two thresholds against that calibration's own.
 #[test]
 fn a_held_out_recording_is_scored_with_its_own_clocks() {
     use gfcal::selfcal::predict::predict_held_out;
@@ -342,6 +343,19 @@ fn a_held_out_recording_is_scored_with_its_own_clocks() {
     assert!(
         page.contains("its own clocks remove") && page.contains(&format!("{:.1}%", 100.0 * with_share)),
         "the report's held-out table"
+    );
+    // With the rate from the gyroscopes (`--use-gyro`: the motion's rate is not refitted), alike.
+    let gyro = CalibrateSettings { use_gyro: true, ..settings };
+    let cal_gyro = calibrate(&fitting.recording, array, &gyro).expect("calibrates");
+    let own_gyro = cal_gyro.clocks.as_ref().expect("clocks fitted").share_removed;
+    let held_gyro = predict_held_out(array, &cal_gyro, &held.recording, &gyro).expect("predicts");
+    let gyro_share = held_gyro.own_clocks_share_removed.expect("a share with --use-gyro");
+    eprintln!(
+        "--use-gyro: the fitting recording's own clocks remove {own_gyro:.3}, a held-out recording's {gyro_share:.3}"
+    );
+    assert!(
+        gyro_share >= 0.8 && (gyro_share - own_gyro).abs() <= 0.1,
+        "--use-gyro: held out {gyro_share}, fitting {own_gyro}"
     );
     let mut plain = array.clone();
     for p in plain.packages.iter_mut() {
