@@ -94,6 +94,11 @@ impl RecordingArray {
         }
     }
 
+    /// Each accelerometer's package index (0 where it names none), as the timing model takes it.
+    pub fn package_indices(&self) -> Vec<usize> {
+        self.package_of.iter().map(|p| p.unwrap_or(0)).collect()
+    }
+
     /// Whether any package declares a free-running sample clock read by sample-and-hold.
     pub fn has_sample_clocks(&self) -> bool {
         self.packages.iter().any(Package::free_running)

@@ -46,8 +46,8 @@ pub fn corrected_dynamic(array: &RecordingArray, fit: &Fit, d: &DynamicData, clo
 /// What a clock problem at `fit` reads: each accelerometer's package, the sensors, and the
 /// outputs' inverse variances in the rotation phase.
 fn timing_inputs(array: &RecordingArray, fit: &Fit) -> (Vec<usize>, Vec<Sensor>, Vec<f64>) {
-    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.unwrap_or(0)).collect();
-    let weights: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    let package_of = array.package_indices();
+    let weights = fit.dynamic_weights();
     (package_of, sensors(&array.array, &fit.params), weights)
 }
 
@@ -95,7 +95,7 @@ pub(super) fn estimate_clocks(
 ) -> Result<(Fit, ClockEstimate), ClockFailure> {
     let not = |why: String| ClockFailure::NotResolved(why);
     let dt = host_dt_s(&rec.t_s).ok_or_else(|| not("the recording has no time step".into()))?;
-    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.unwrap_or(0)).collect();
+    let package_of = array.package_indices();
     let span_s = d.t_s.last().copied().unwrap_or(0.0) - d.t_s.first().copied().unwrap_or(0.0);
     let t_ref_s = d.t_s.first().copied().unwrap_or(0.0) + 0.5 * span_s;
     // The sawtooth's step a host sample is at most R eps_max periods; a clock whose beat the
@@ -162,7 +162,7 @@ pub(super) fn estimate_clocks(
     let all = 0..d.samples();
     let problem_at = |fit: &Fit, d: &DynamicData| {
         let sens = sensors(&array.array, &fit.params);
-        let weights: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+        let weights = fit.dynamic_weights();
         ClockProblem::new(&sens, d, &fit.motion, &weights, &package_of)
     };
     // A package whose sawtooth does not complete a period in the rotation phase keeps the
@@ -326,7 +326,7 @@ pub(super) fn estimate_clocks(
     fit.omega_sigma_rad_s = crate::selfcal::track::rate_sigmas(
         &array.array,
         &fitted_to,
-        &fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect::<Vec<_>>(),
+        &fit.dynamic_weights(),
         &fit.params,
         &fit.motion,
         fitted_to.reference_rate_rad_s.is_some(),

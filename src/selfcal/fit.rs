@@ -149,6 +149,10 @@ impl Fit {
     pub fn identified(&self, j: usize, p: usize) -> bool {
         self.sigma(j, p).is_finite()
     }
+    /// Each accelerometer's weight in the rotation phase, `1 / sigma_d,j^2`.
+    pub fn dynamic_weights(&self) -> Vec<f64> {
+        self.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect()
+    }
 }
 
 /// Why a fit failed.
@@ -210,7 +214,7 @@ impl Weights {
             static_w: DMatrix::from_fn(poses, n, |p, j| {
                 stat.counts[p] as f64 / (stat.sigma[j].powi(2) * fit.static_variance_factor)
             }),
-            dynamic_w: fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect(),
+            dynamic_w: fit.dynamic_weights(),
             dynamic_output_w: None,
         }
     }

@@ -97,7 +97,7 @@ pub fn predict_as_fitted(
     gravity_m_s2: f64,
     refit: Refit,
 ) -> Result<(HeldOut, HeldOutState), super::recording::RecordingError> {
-    let dynamic_w: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    let dynamic_w = cal.fit.dynamic_weights();
     predict_with_state(array, &cal.fit.params, rec, detector, gravity_m_s2, refit, Some(&dynamic_w), cal.use_gyro)
 }
 
@@ -143,8 +143,8 @@ fn own_clocks_share_removed(
     }
     let d = state.dynamic.as_ref().filter(|d| d.samples() > 0 && d.samples() == state.motion.len())?;
     let clocks = gyroscope_clocks(rec, array, settings).ok()?;
-    let weights: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
-    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.unwrap_or(0)).collect();
+    let weights = cal.fit.dynamic_weights();
+    let package_of = array.package_indices();
     let sens = sensors(&array.array, &state.params);
     let problem = ClockProblem::new(&sens, d, &state.motion, &weights, &package_of);
     let rate_given = d.reference_rate_rad_s.is_some();

@@ -1262,7 +1262,7 @@ pub fn bound_at_truth(
         d.reference_rate_rad_s = Some(prepared.index.iter().map(|&i| sim.motion[i].omega_rad_s).collect());
     }
     let motion: Vec<SampleMotion> = prepared.index.iter().map(|&i| sim.motion[i]).collect();
-    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.unwrap_or(0)).collect();
+    let package_of = array.package_indices();
     let ages = match (&dynamic, cal.clocks.is_some()) {
         (Some(d), true) => Some(super::timing::accelerometer_ages(d, &sim.clocks, &package_of)),
         _ => None,

@@ -102,7 +102,7 @@ fn diagnose_as_recorded(
     let g = settings.fit.gravity_m_s2;
     // Every recording's motion is tracked as the calibration tracked the fitting one: with its
     // per-accelerometer weights, and with the rate from the gyroscopes under --use-gyro.
-    let dynamic_w: Vec<f64> = fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    let dynamic_w = fit.dynamic_weights();
     let predict = |rec: &Recording, refit: Refit| {
         predict_as_fitted(&array.array, &calibration, rec, &settings.detector, g, refit)
     };
@@ -451,7 +451,7 @@ fn sample_clock_test(
     let p = c.null_p_value();
     let null_max = c.null_shares_removed.iter().cloned().fold(0.0, f64::max);
     let mine = c.relative_rate_offsets();
-    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.unwrap_or(0)).collect();
+    let package_of = array.package_indices();
     let mut worst_ppm = 0.0f64;
     let mut chi2 = 0.0;
     let mut dof = 0usize;
