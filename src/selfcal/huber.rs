@@ -34,8 +34,6 @@
 
 use nalgebra::DMatrix;
 
-use super::data::DynamicData;
-
 /// The clip in robust scales of the residual: 2 (95% efficiency at Gaussian residuals is 1.345;
 /// 2 gives up less of the bulk, and 3 gave the same locations in the experiment of
 /// `docs/sample-clocks.md`).
@@ -73,15 +71,6 @@ pub fn shift(residuals: &DMatrix<f64>, used: &[bool], clip: f64) -> DMatrix<f64>
         let r = residuals[(i, j)];
         if used[i * n + j] && r.is_finite() { r.clamp(-clip, clip) - r } else { 0.0 }
     })
-}
-
-/// `d` with only the outputs whose residual lies within the clip used: the data of the
-/// sandwich's bread (module docs).
-pub fn within_clip(d: &DynamicData, residuals: &DMatrix<f64>, clip: f64) -> DynamicData {
-    let clip = usable(clip);
-    let n = d.outputs.ncols();
-    let used = d.used.iter().enumerate().map(|(k, &u)| u && residuals[(k / n, k % n)].abs() <= clip).collect();
-    DynamicData { used, ..d.clone() }
 }
 
 /// Per used output (row-major, samples x accelerometers), the chance that its residual falls

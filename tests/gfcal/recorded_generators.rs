@@ -68,7 +68,7 @@ fn set(r: &mut Recording, i: usize, j: usize, s: f64, range: f64) {
 
 /// An input-dependent scale factor `s = k (b + u + c u^power)` on accelerometer `j`, applied to the
 /// true reading (the output less the truth's bias, over its scale factor) of a simulated recording.
-fn with_power(mut r: Recording, array: &RecordingArray, t: &SensorSet, j: usize, c: f64, power: i32) -> Recording {
+pub fn with_power(mut r: Recording, array: &RecordingArray, t: &SensorSet, j: usize, c: f64, power: i32) -> Recording {
     let range = array.ranges_m_s2[j];
     for i in 0..r.samples() {
         let s = r.outputs[(i, j)];

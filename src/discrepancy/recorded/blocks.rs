@@ -10,6 +10,7 @@ use super::projected::{Accumulated, Block, Spread, accumulate};
 use crate::array::Array;
 use crate::selfcal::data::{DynamicData, StaticData};
 use crate::selfcal::model::{PER_ACCEL, SampleMotion, Sensor, SensorSet, sensors};
+use crate::selfcal::timing::TIMING_UNKNOWNS_PER_SAMPLE;
 use crate::sensor::misalignment::tilt_basis;
 
 /// The fitted state of one recording.
@@ -27,6 +28,13 @@ pub struct RecordingState<'a> {
     pub motion: &'a [SampleMotion],
     /// Weight of one dynamic output per accelerometer.
     pub dynamic_w: &'a [f64],
+    /// With the sample clocks fitted: each dynamic output's relative age (samples x
+    /// accelerometers, s, `selfcal::timing::accelerometer_ages`). Each sample's timing motion
+    /// (jerk and angular jerk, `selfcal::timing`) is then local nuisance too: the outputs were
+    /// corrected with the fitted timing motion, which took its share of any effect.
+    pub ages_s: Option<&'a DMatrix<f64>>,
+    /// Per dynamic output (samples x accelerometers): a factor on its weight.
+    pub row_factor: Option<&'a DMatrix<f64>>,
     pub gravity_m_s2: f64,
     /// The recording's middle time, s.
     pub t_mid_s: f64,
@@ -188,7 +196,8 @@ pub fn accumulate_recording(
     let dynamics = match state.dynamic {
         Some(d) if !state.motion.is_empty() => {
             let reference = d.reference_rate_rad_s.as_ref();
-            let nlocal = if reference.is_some() { 6 } else { 9 };
+            let nmotion = if reference.is_some() { 6 } else { 9 };
+            let nlocal = nmotion + if state.ages_s.is_some() { TIMING_UNKNOWNS_PER_SAMPLE } else { 0 };
             let df_all = derivatives(d, |i| state.motion[i].f_m_s2);
             let dalpha_all = derivatives(d, |i| state.motion[i].alpha_rad_s2);
             // The rate's derivative inside the centripetal term's derivative: with `--use-gyro`, the
@@ -222,8 +231,18 @@ pub fn accumulate_recording(
                         Vector3::zeros()
                     };
                     let dm = s.d_motion(m);
-                    for c in 0..nlocal {
+                    for c in 0..nmotion {
                         local[(j, c)] = dm[c];
+                    }
+                    if let Some(ages) = state.ages_s {
+                        // The timing term's columns (`selfcal::timing`): `tau k a` for the jerk,
+                        // `tau k (r x a)` for the angular jerk.
+                        let g = s.k * ages[(i, j)];
+                        let ra = r.cross(&s.axis);
+                        for c in 0..3 {
+                            local[(j, nmotion + c)] = g * s.axis[c];
+                            local[(j, nmotion + 3 + c)] = g * ra[c];
+                        }
                     }
                     buf.iter_mut().for_each(|v| *v = 0.0);
                     nuisance.regress(j, n, s, &q, Some(s.d_location(m)), &mut buf);
@@ -241,7 +260,7 @@ pub fn accumulate_recording(
                     regress_effects(&row, &mut buf);
                     columns.row_mut(j).copy_from_slice(&buf);
                     residual[j] = d.outputs[(i, j)] - s.output(&q);
-                    weight[j] = state.dynamic_w[j];
+                    weight[j] = state.dynamic_w[j] * state.row_factor.map_or(1.0, |f| f[(i, j)]);
                 }
                 Some(Block { local, columns, residual, weight })
             })

@@ -6,6 +6,7 @@
 //! - [`blocks`]: each recording's normal equations with the effects' columns;
 //! - [`projected`]: terms fitted on top of the eliminated nuisance; [`trial`]: each effect's rank
 //!   test and held-out trial; [`change`]: the test of a per-recording parameter's change;
+//! - [`sample_spread`]: each rotation-phase output's weight after the sample clocks;
 //! - [`sensing`]: the sensing points of each package's axes.
 
 pub mod blocks;
@@ -15,6 +16,7 @@ pub mod diagnosis;
 pub mod effect;
 pub mod output;
 pub mod projected;
+pub mod sample_spread;
 pub mod sensing;
 pub mod trial;
 
