@@ -69,7 +69,7 @@ mod tests {
         let r = DMatrix::from_row_slice(3, 3, &[1.0, 1.0, 1.0, 3.0, 3.0, 3.0, 1.0, 1.0, 10.0]);
         let used = vec![true; 9];
         let f = other_outputs_factors(&r, &used, &[1.0; 3]);
-        let mean = (3.0 + 27.0 + 2.0 + 100.0) / 9.0;
+        let mean: f64 = (3.0 + 27.0 + 2.0 + 100.0) / 9.0;
         let factor = |others_mean_square: f64| 1.0 / (others_mean_square / mean).max(SPREAD_FLOOR);
         assert!((f[(0, 0)] - factor(1.0)).abs() < 1e-15);
         assert!((f[(1, 2)] - factor(9.0)).abs() < 1e-15);
@@ -82,7 +82,7 @@ mod tests {
         let mut used = used;
         used[8] = false;
         let g = other_outputs_factors(&r, &used, &[1.0; 3]);
-        let mean = (3.0 + 27.0 + 2.0) / 8.0;
+        let mean: f64 = (3.0 + 27.0 + 2.0) / 8.0;
         assert!((g[(2, 0)] - 1.0 / (1.0 / mean).max(SPREAD_FLOOR)).abs() < 1e-15);
         assert!((g[(2, 2)] - 1.0 / (1.0 / mean).max(SPREAD_FLOOR)).abs() < 1e-15);
     }
