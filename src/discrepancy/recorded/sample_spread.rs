@@ -38,7 +38,7 @@ pub fn other_outputs_factors(residuals: &DMatrix<f64>, used: &[bool], weights: &
         }
     }
     let mut out = DMatrix::from_element(m, n, 1.0);
-    if count == 0 || !(total > 0.0) {
+    if count == 0 || total.is_nan() || total <= 0.0 {
         return out;
     }
     let mean = total / count as f64;
