@@ -6,17 +6,20 @@
 //! violent sample's outputs are large together. Weighting each output by the inverse of its
 //! sample's mean weighted square keeps the information of the quiet samples and lets the violent
 //! ones count less, as the inverse variances of the rows would. The sample's own output is left
-//! out of its factor, so the weight does not select on the residual the test reads: keeping only
-//! the outputs within the calibration's Huber clip did, and took out the outputs an effect pushes
-//! beyond it (a quadratic scale factor hidden in a simulated clocked recording read 5% of its
-//! size; `tests/gfcal/clock_recovery.rs`). The tests' sandwich covariance holds whatever the
+//! out of its factor, so the weight does not select on the residual the test reads (only
+//! approximately: the sample's fitted motion spreads a little of each output's residual into the
+//! others, symmetrically, which biases nothing). Keeping only the outputs within the calibration's
+//! Huber clip did select, and took out the outputs an effect pushes beyond it (a quadratic scale
+//! factor hidden in a simulated clocked recording read 12% of its size;
+//! `tests/gfcal/clock_recovery.rs`). The tests' sandwich covariance holds whatever the
 //! weights, so the factors change how much the test sees, not whether its sigma is honest.
 
 use nalgebra::DMatrix;
 
 /// The smallest spread a sample is given, relative to the phase's mean weighted square: no
 /// output counts more than 4 times its calibration weight (the other outputs' mean square of a
-/// quiet sample, about 15 degrees of freedom, is itself uncertain by about a third).
+/// quiet sample, about 9 degrees of freedom after the motion's 9 and the timing motion's 6
+/// unknowns, is itself uncertain by about half).
 pub const SPREAD_FLOOR: f64 = 0.25;
 
 /// Per output (samples x accelerometers, the shape of `residuals`), the factor on its weight:
@@ -38,7 +41,7 @@ pub fn other_outputs_factors(residuals: &DMatrix<f64>, used: &[bool], weights: &
         }
     }
     let mut out = DMatrix::from_element(m, n, 1.0);
-    if count == 0 || total.is_nan() || total <= 0.0 {
+    if count == 0 || !total.is_finite() || total <= 0.0 {
         return out;
     }
     let mean = total / count as f64;
@@ -78,12 +81,15 @@ mod tests {
         assert!((f[(2, 0)] - factor(50.5)).abs() < 1e-15);
         // The floor: a quiet sample counts at most 4 times.
         assert_eq!(f[(0, 0)], 1.0 / SPREAD_FLOOR);
-        // An output not used takes no part and keeps the factor of the others.
-        let mut used = used;
+        // An output not used takes no part, in its sample or in the phase's mean (values above the
+        // floor: counted in the mean, the large output would floor every factor of sample 2).
+        let r = DMatrix::from_row_slice(3, 3, &[2.0, 2.0, 2.0, 3.0, 3.0, 3.0, 2.0, 2.0, 10.0]);
+        let mut used = vec![true; 9];
         used[8] = false;
         let g = other_outputs_factors(&r, &used, &[1.0; 3]);
-        let mean: f64 = (3.0 + 27.0 + 2.0) / 8.0;
-        assert!((g[(2, 0)] - 1.0 / (1.0 / mean).max(SPREAD_FLOOR)).abs() < 1e-15);
-        assert!((g[(2, 2)] - 1.0 / (1.0 / mean).max(SPREAD_FLOOR)).abs() < 1e-15);
+        let mean: f64 = (12.0 + 27.0 + 8.0) / 8.0;
+        assert!((g[(2, 0)] - mean / 4.0).abs() < 1e-15, "{}", g[(2, 0)]);
+        assert!((g[(2, 2)] - mean / 4.0).abs() < 1e-15, "{}", g[(2, 2)]);
+        assert!(mean / 4.0 < 1.0 / SPREAD_FLOOR);
     }
 }
