@@ -37,12 +37,21 @@ pub fn median(values: &[f64]) -> f64 {
 /// Pseudo-inverse of a symmetric positive semi-definite matrix, scaled by its diagonal first so
 /// that columns of different units compare; eigenvalues below `tolerance` times the largest are
 /// dropped. Returns the pseudo-inverse and the rank.
+///
+/// A column whose diagonal is below [`NEGLIGIBLE_DIAGONAL`] times the largest is taken as zero:
+/// scaled by `1 / sqrt(h_ii)` its inverse's elements overflow. A dynamic sample turning at a rate
+/// of almost exactly zero has rate columns near 1e-318 beside specific-force columns near 60, and
+/// the pseudo-inverse of its block was infinite, which made a whole diagnosis's accumulation NaN
+/// (every effect then read as unseen; found on a simulated clocked recording on 2026-12-01).
 pub fn symmetric_pinv(h: &DMatrix<f64>, tolerance: f64) -> (DMatrix<f64>, usize) {
     let n = h.nrows();
     if n == 0 {
         return (DMatrix::zeros(0, 0), 0);
     }
-    let d: Vec<f64> = (0..n).map(|i| if h[(i, i)] > 0.0 { 1.0 / h[(i, i)].sqrt() } else { 0.0 }).collect();
+    let largest_diagonal = (0..n).map(|i| h[(i, i)]).fold(0.0f64, f64::max);
+    let floor = largest_diagonal * NEGLIGIBLE_DIAGONAL;
+    let d: Vec<f64> =
+        (0..n).map(|i| if h[(i, i)] > 0.0 && h[(i, i)] > floor { 1.0 / h[(i, i)].sqrt() } else { 0.0 }).collect();
     let scaled = DMatrix::from_fn(n, n, |i, j| h[(i, j)] * d[i] * d[j]);
     let eig = scaled.symmetric_eigen();
     let largest = eig.eigenvalues.iter().copied().fold(0.0f64, f64::max);
@@ -58,6 +67,11 @@ pub fn symmetric_pinv(h: &DMatrix<f64>, tolerance: f64) -> (DMatrix<f64>, usize)
     (DMatrix::from_fn(n, n, |i, j| inv[(i, j)] * d[i] * d[j]), rank)
 }
 
+/// A diagonal below this fraction of the largest is zero in [`symmetric_pinv`] (200 decades: no
+/// physical column is that much smaller than another, and above it the scaled inverse stays
+/// finite for any tolerance down to 1e-100).
+pub const NEGLIGIBLE_DIAGONAL: f64 = 1e-200;
+
 /// The p-value of a Wald test of `value` (zero mean) with covariance `cov`, on its rank.
 pub fn wald_p(value: &[f64], cov: &DMatrix<f64>) -> f64 {
     let (inv, rank) = symmetric_pinv(cov, 1e-10);
@@ -72,6 +86,26 @@ pub fn wald_p(value: &[f64], cov: &DMatrix<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_column_hundreds_of_decades_below_the_others_is_taken_as_zero() {
+        // The block of a sample turning at almost zero rate: a well-scaled 2 x 2 part and a
+        // subnormal third column. Its pseudo-inverse is the 2 x 2 inverse, the third row and
+        // column zero, rank 2 (before: infinite elements).
+        let mut h = DMatrix::from_row_slice(3, 3, &[60.0, 3.0, 0.0, 3.0, 2.0, 0.0, 0.0, 0.0, 4.66e-318]);
+        h[(0, 2)] = 1e-160;
+        h[(2, 0)] = 1e-160;
+        let (inv, rank) = symmetric_pinv(&h, 1e-12);
+        assert_eq!(rank, 2);
+        let det = 60.0 * 2.0 - 9.0;
+        let want = [[2.0 / det, -3.0 / det], [-3.0 / det, 60.0 / det]];
+        for (i, row) in want.iter().enumerate() {
+            for (j, w) in row.iter().enumerate() {
+                assert!((inv[(i, j)] - w).abs() < 1e-14, "{i} {j}: {} against {w}", inv[(i, j)]);
+            }
+        }
+        assert!((0..3).all(|k| inv[(2, k)] == 0.0 && inv[(k, 2)] == 0.0));
+    }
 
     #[test]
     fn tails_match_closed_forms() {
