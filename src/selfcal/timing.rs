@@ -138,6 +138,12 @@ pub fn centripetal_rate(m: &SampleMotion, r: &Vector3<f64>) -> Vector3<f64> {
     a * w.dot(r) + w * a.dot(r) - r * (2.0 * w.dot(a))
 }
 
+/// The directions an output reads the timing motion along, before its scale factor and age:
+/// its axis for the jerk, `r x a` for the angular jerk (`a . (dalpha/dt x r) = dalpha/dt . (r x a)`).
+pub fn timing_directions(s: &Sensor) -> (Vector3<f64>, Vector3<f64>) {
+    (s.axis, s.position_m.cross(&s.axis))
+}
+
 /// Unknowns a sample spends on the timing model: the jerk and the angular jerk.
 pub const TIMING_UNKNOWNS_PER_SAMPLE: usize = 6;
 
@@ -291,7 +297,8 @@ impl ClockProblem {
         let gain = sensors
             .iter()
             .map(|s| {
-                let (a, b) = (s.axis * s.k, s.position_m.cross(&s.axis) * s.k);
+                let (a, b) = timing_directions(s);
+                let (a, b) = (a * s.k, b * s.k);
                 Vector6::new(a[0], a[1], a[2], b[0], b[1], b[2])
             })
             .collect();

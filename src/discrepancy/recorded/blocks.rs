@@ -10,7 +10,7 @@ use super::projected::{Accumulated, Block, Spread, accumulate};
 use crate::array::Array;
 use crate::selfcal::data::{DynamicData, StaticData};
 use crate::selfcal::model::{PER_ACCEL, SampleMotion, Sensor, SensorSet, sensors};
-use crate::selfcal::timing::TIMING_UNKNOWNS_PER_SAMPLE;
+use crate::selfcal::timing::{TIMING_UNKNOWNS_PER_SAMPLE, timing_directions};
 use crate::sensor::misalignment::tilt_basis;
 
 /// The fitted state of one recording.
@@ -207,6 +207,7 @@ pub fn accumulate_recording(
             // 0.33-0.51 ms, and with the gyroscopes' derivative by 1.19-1.38 ms.)
             let omega_dot = reference.map(|r| derivatives(d, |i| r[i]));
             let banded = whole_differentiator(d);
+            let directions: Vec<_> = sens.iter().map(timing_directions).collect();
             accumulate(d.samples(), cols, Spread::Sandwich, |i| {
                 let m = &state.motion[i];
                 let (df, dalpha) = (df_all[i], dalpha_all[i]);
@@ -238,9 +239,9 @@ pub fn accumulate_recording(
                         // The timing term's columns (`selfcal::timing`): `tau k a` for the jerk,
                         // `tau k (r x a)` for the angular jerk.
                         let g = s.k * ages[(i, j)];
-                        let ra = r.cross(&s.axis);
+                        let (a, ra) = &directions[j];
                         for c in 0..3 {
-                            local[(j, nmotion + c)] = g * s.axis[c];
+                            local[(j, nmotion + c)] = g * a[c];
                             local[(j, nmotion + 3 + c)] = g * ra[c];
                         }
                     }
