@@ -286,11 +286,10 @@ fn the_diagnosis_names_sample_clock_with_the_clocks_and_nothing_without() {
 /// run at about eight times the sigma the route of the time printed there, 5.3e-6) is recovered
 /// within 3 sigma, and named on no other accelerometer. Until 2026-12-01 the library was tried on
 /// the outputs within the calibration's Huber clip, which selects on the residual: the effect read
-/// 4.9e-6 +- 7.6e-6 there (12% of its size; 3.7e-5 +- 1.7e-5 by least squares on every output,
-/// 3.57e-5 +- 1.57e-5 since the tests run on a Huber M-estimate's weights, `huber_fixed_point`: too
-/// few sigmas to be named on 30 s of rotation, and no sharper than the same recording simulated
-/// without clocks, 1.2e-5). The check that it lies more than 2 sigmas from zero was added after the
-/// first run, at this seed's 2.2: a regression check of this route, not a power claim.
+/// 4.9e-6 +- 7.6e-6 there (12% of its size; 3.7e-5 +- 1.7e-5 now, too few sigmas to be named on
+/// 30 s of rotation, and no sharper than the same recording simulated without clocks, 1.2e-5). The
+/// check that it lies more than 2 sigmas from zero was added after the first run, at this seed's
+/// 2.2: a regression check of this route, not a power claim.
 #[test]
 fn a_quadratic_scale_factor_hidden_in_a_clocked_recording_is_recovered_after_the_clocks() {
     let (cell, sim) = short_clocked_recording(7);

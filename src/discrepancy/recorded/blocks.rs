@@ -35,9 +35,6 @@ pub struct RecordingState<'a> {
     pub ages_s: Option<&'a DMatrix<f64>>,
     /// Per dynamic output (samples x accelerometers): a factor on its weight.
     pub row_factor: Option<&'a DMatrix<f64>>,
-    /// Per dynamic output: a factor on its weight after the sample's local nuisance is
-    /// eliminated (`huber_fixed_point`).
-    pub projected_factor: Option<&'a DMatrix<f64>>,
     pub gravity_m_s2: f64,
     /// The recording's middle time, s.
     pub t_mid_s: f64,
@@ -149,7 +146,18 @@ pub fn accumulate_recording(
     let sens = sensors(array, state.params);
     let nominal: Vec<Vector3<f64>> = array.accelerometers().iter().map(|a| a.axis).collect();
     let g0 = nuisance.columns(n);
-    let (offsets, cols) = effect_offsets(nuisance, effects, &layout, n);
+    let mut offsets = Vec::with_capacity(effects.len());
+    let mut cols = g0;
+    for e in effects {
+        offsets.push(cols);
+        cols += e.parameters(&layout);
+    }
+    let regress_effects = |row: &Row, out: &mut [f64]| {
+        for (e, &o) in effects.iter().zip(&offsets) {
+            let p = e.parameters(&layout);
+            e.regress(row, &layout, &mut out[o..o + p]);
+        }
+    };
     let g = state.gravity_m_s2;
     let stat = state.stat;
     let mut statics = accumulate(stat.means.nrows(), cols, Spread::Model, |p| {
@@ -177,17 +185,88 @@ pub fn accumulate_recording(
                 d_omega: None,
                 reference_rate_rad_s: None,
             };
-            regress_effects(effects, &offsets, &layout, &row, &mut buf);
+            regress_effects(&row, &mut buf);
             columns.row_mut(j).copy_from_slice(&buf);
             residual[j] = stat.means[(p, j)] - s.output(&q);
             weight[j] = stat.counts[p] as f64 / (stat.sigma[j].powi(2) * state.static_variance_factor);
         }
-        Some(Block { local, columns, residual, weight, projected_factor: None })
+        Some(Block { local, columns, residual, weight })
     });
     statics.variance_factor = state.static_variance_factor;
-    let dynamics = match DynamicRows::new(state, nuisance, effects) {
-        Some(rows) => accumulate(rows.samples(), cols, Spread::Sandwich, |i| rows.block(i)),
-        None => Accumulated::zeros(cols),
+    let dynamics = match state.dynamic {
+        Some(d) if !state.motion.is_empty() => {
+            let reference = d.reference_rate_rad_s.as_ref();
+            let nmotion = if reference.is_some() { 6 } else { 9 };
+            let nlocal = nmotion + if state.ages_s.is_some() { TIMING_UNKNOWNS_PER_SAMPLE } else { 0 };
+            let df_all = derivatives(d, |i| state.motion[i].f_m_s2);
+            let dalpha_all = derivatives(d, |i| state.motion[i].alpha_rad_s2);
+            // The rate's derivative inside the centripetal term's derivative: with `--use-gyro`, the
+            // gyroscopes' rate's, the rate the term is formed from. (The fitted angular acceleration is
+            // a free parameter of each sample, pulled by whatever the model leaves out: on the real
+            // recordings a delay of the gyroscopes by 1.2 ms moved the delay read with it by
+            // 0.33-0.51 ms, and with the gyroscopes' derivative by 1.19-1.38 ms.)
+            let omega_dot = reference.map(|r| derivatives(d, |i| r[i]));
+            let banded = whole_differentiator(d);
+            let directions: Vec<_> = sens.iter().map(timing_directions).collect();
+            accumulate(d.samples(), cols, Spread::Sandwich, |i| {
+                let m = &state.motion[i];
+                let (df, dalpha) = (df_all[i], dalpha_all[i]);
+                let mut local = DMatrix::zeros(n, nlocal);
+                let mut columns = DMatrix::zeros(n, cols);
+                let mut residual = DVector::zeros(n);
+                let mut weight = DVector::zeros(n);
+                let mut buf = vec![0.0; cols];
+                let w = &m.omega_rad_s;
+                let al = omega_dot.as_ref().map_or(&m.alpha_rad_s2, |r| &r[i]);
+                for (j, s) in sens.iter().enumerate() {
+                    if !d.used[i * n + j] {
+                        continue;
+                    }
+                    let r = &s.position_m;
+                    let q = m.specific_force_m_s2(r);
+                    // The delay's column only where the derivatives are band-limited (see
+                    // `whole_differentiator`); elsewhere the row carries no delay information.
+                    let dq = if banded[i] {
+                        df + dalpha.cross(r) + al * w.dot(r) + w * al.dot(r) - r * (2.0 * w.dot(al))
+                    } else {
+                        Vector3::zeros()
+                    };
+                    let dm = s.d_motion(m);
+                    for c in 0..nmotion {
+                        local[(j, c)] = dm[c];
+                    }
+                    if let Some(ages) = state.ages_s {
+                        // The timing term's columns (`selfcal::timing`): `tau k a` for the jerk,
+                        // `tau k (r x a)` for the angular jerk.
+                        let g = s.k * ages[(i, j)];
+                        let (a, ra) = &directions[j];
+                        for c in 0..3 {
+                            local[(j, nmotion + c)] = g * a[c];
+                            local[(j, nmotion + 3 + c)] = g * ra[c];
+                        }
+                    }
+                    buf.iter_mut().for_each(|v| *v = 0.0);
+                    nuisance.regress(j, n, s, &q, Some(s.d_location(m)), &mut buf);
+                    let row = Row {
+                        j,
+                        k: s.k,
+                        axis: s.axis,
+                        nominal_axis: nominal[j],
+                        q_m_s2: q,
+                        dq_dt_m_s3: dq,
+                        t_from_mid_s: d.t_s[i] - state.t_mid_s,
+                        d_omega: Some([dm[6], dm[7], dm[8]]),
+                        reference_rate_rad_s: reference.map(|r| r[i]),
+                    };
+                    regress_effects(&row, &mut buf);
+                    columns.row_mut(j).copy_from_slice(&buf);
+                    residual[j] = d.outputs[(i, j)] - s.output(&q);
+                    weight[j] = state.dynamic_w[j] * state.row_factor.map_or(1.0, |f| f[(i, j)]);
+                }
+                Some(Block { local, columns, residual, weight })
+            })
+        }
+        _ => Accumulated::zeros(cols),
     };
     RecordingNormal {
         statics,
@@ -195,156 +274,6 @@ pub fn accumulate_recording(
         offsets,
         nuisance_columns: g0,
         refit: refit.unwrap_or_else(|| (0..g0).collect()),
-    }
-}
-
-/// Each effect's first column (after the nuisance's), and the number of columns.
-fn effect_offsets(
-    nuisance: Nuisance,
-    effects: &[RecordedEffect],
-    layout: &EffectLayout,
-    n: usize,
-) -> (Vec<usize>, usize) {
-    let mut offsets = Vec::with_capacity(effects.len());
-    let mut cols = nuisance.columns(n);
-    for e in effects {
-        offsets.push(cols);
-        cols += e.parameters(layout);
-    }
-    (offsets, cols)
-}
-
-/// Writes every effect's regressor of `row` into its columns of `out`.
-fn regress_effects(effects: &[RecordedEffect], offsets: &[usize], layout: &EffectLayout, row: &Row, out: &mut [f64]) {
-    for (e, &o) in effects.iter().zip(offsets) {
-        let p = e.parameters(layout);
-        e.regress(row, layout, &mut out[o..o + p]);
-    }
-}
-
-/// The dynamic samples of a recording as blocks (one per sample: its used outputs; local nuisance
-/// the sample's motion, and its timing motion with the sample clocks), with what every block
-/// shares formed once.
-pub struct DynamicRows<'a> {
-    state: &'a RecordingState<'a>,
-    data: &'a DynamicData,
-    nuisance: Nuisance,
-    effects: &'a [RecordedEffect],
-    layout: EffectLayout,
-    sens: Vec<Sensor>,
-    nominal: Vec<Vector3<f64>>,
-    offsets: Vec<usize>,
-    cols: usize,
-    nmotion: usize,
-    nlocal: usize,
-    df: Vec<Vector3<f64>>,
-    dalpha: Vec<Vector3<f64>>,
-    omega_dot: Option<Vec<Vector3<f64>>>,
-    banded: Vec<bool>,
-    directions: Vec<(Vector3<f64>, Vector3<f64>)>,
-}
-
-impl<'a> DynamicRows<'a> {
-    /// `None` when the recording has no dynamic phase.
-    pub fn new(state: &'a RecordingState<'a>, nuisance: Nuisance, effects: &'a [RecordedEffect]) -> Option<Self> {
-        let d = state.dynamic.filter(|_| !state.motion.is_empty())?;
-        let array = state.array;
-        let n = array.len();
-        let layout = EffectLayout::new(array);
-        let sens = sensors(array, state.params);
-        let (offsets, cols) = effect_offsets(nuisance, effects, &layout, n);
-        let reference = d.reference_rate_rad_s.as_ref();
-        let nmotion = if reference.is_some() { 6 } else { 9 };
-        // The rate's derivative inside the centripetal term's derivative: with `--use-gyro`, the
-        // gyroscopes' rate's, the rate the term is formed from. (The fitted angular acceleration is
-        // a free parameter of each sample, pulled by whatever the model leaves out: on the real
-        // recordings a delay of the gyroscopes by 1.2 ms moved the delay read with it by
-        // 0.33-0.51 ms, and with the gyroscopes' derivative by 1.19-1.38 ms.)
-        Some(Self {
-            state,
-            data: d,
-            nuisance,
-            effects,
-            nominal: array.accelerometers().iter().map(|a| a.axis).collect(),
-            directions: sens.iter().map(timing_directions).collect(),
-            sens,
-            layout,
-            offsets,
-            cols,
-            nmotion,
-            nlocal: nmotion + if state.ages_s.is_some() { TIMING_UNKNOWNS_PER_SAMPLE } else { 0 },
-            df: derivatives(d, |i| state.motion[i].f_m_s2),
-            dalpha: derivatives(d, |i| state.motion[i].alpha_rad_s2),
-            omega_dot: reference.map(|r| derivatives(d, |i| r[i])),
-            banded: whole_differentiator(d),
-        })
-    }
-
-    pub fn samples(&self) -> usize {
-        self.data.samples()
-    }
-
-    /// The block of sample `i`.
-    pub fn block(&self, i: usize) -> Option<Block> {
-        let (state, d, n, cols) = (self.state, self.data, self.sens.len(), self.cols);
-        let nmotion = self.nmotion;
-        let reference = d.reference_rate_rad_s.as_ref();
-        let m = &state.motion[i];
-        let (df, dalpha) = (self.df[i], self.dalpha[i]);
-        let mut local = DMatrix::zeros(n, self.nlocal);
-        let mut columns = DMatrix::zeros(n, cols);
-        let mut residual = DVector::zeros(n);
-        let mut weight = DVector::zeros(n);
-        let mut buf = vec![0.0; cols];
-        let w = &m.omega_rad_s;
-        let al = self.omega_dot.as_ref().map_or(&m.alpha_rad_s2, |r| &r[i]);
-        for (j, s) in self.sens.iter().enumerate() {
-            if !d.used[i * n + j] {
-                continue;
-            }
-            let r = &s.position_m;
-            let q = m.specific_force_m_s2(r);
-            // The delay's column only where the derivatives are band-limited (see
-            // `whole_differentiator`); elsewhere the row carries no delay information.
-            let dq = if self.banded[i] {
-                df + dalpha.cross(r) + al * w.dot(r) + w * al.dot(r) - r * (2.0 * w.dot(al))
-            } else {
-                Vector3::zeros()
-            };
-            let dm = s.d_motion(m);
-            for c in 0..nmotion {
-                local[(j, c)] = dm[c];
-            }
-            if let Some(ages) = state.ages_s {
-                // The timing term's columns (`selfcal::timing`): `tau k a` for the jerk,
-                // `tau k (r x a)` for the angular jerk.
-                let g = s.k * ages[(i, j)];
-                let (a, ra) = &self.directions[j];
-                for c in 0..3 {
-                    local[(j, nmotion + c)] = g * a[c];
-                    local[(j, nmotion + 3 + c)] = g * ra[c];
-                }
-            }
-            buf.iter_mut().for_each(|v| *v = 0.0);
-            self.nuisance.regress(j, n, s, &q, Some(s.d_location(m)), &mut buf);
-            let row = Row {
-                j,
-                k: s.k,
-                axis: s.axis,
-                nominal_axis: self.nominal[j],
-                q_m_s2: q,
-                dq_dt_m_s3: dq,
-                t_from_mid_s: d.t_s[i] - state.t_mid_s,
-                d_omega: Some([dm[6], dm[7], dm[8]]),
-                reference_rate_rad_s: reference.map(|r| r[i]),
-            };
-            regress_effects(self.effects, &self.offsets, &self.layout, &row, &mut buf);
-            columns.row_mut(j).copy_from_slice(&buf);
-            residual[j] = d.outputs[(i, j)] - s.output(&q);
-            weight[j] = state.dynamic_w[j] * state.row_factor.map_or(1.0, |f| f[(i, j)]);
-        }
-        let projected_factor = state.projected_factor.map(|f| DVector::from_fn(n, |j, _| f[(i, j)]));
-        Some(Block { local, columns, residual, weight, projected_factor })
     }
 }
 

@@ -40,7 +40,6 @@ use super::blocks::{Nuisance, RecordingState, accumulate_recording, refitted_col
 use super::change::change_test;
 use super::diagnosis::{Gap, HeldOutScore, RecordedDiagnosis, RecordedError, RecordedFinding};
 use super::effect::{EffectLayout, RecordedEffect};
-use super::huber_fixed_point::huber_fixed_point;
 use super::sample_spread::other_outputs_factors;
 use super::sensing::sensing_points;
 use super::trial::{HeldOutNormal, try_effects};
@@ -313,22 +312,12 @@ fn diagnose_as_recorded(
         dynamic_w: &dynamic_w,
         ages_s: ages_s.as_ref(),
         row_factor: row_factor.as_ref(),
-        projected_factor: None,
         gravity_m_s2: g,
         t_mid_s: middle(&fitting.t_s),
     };
     let normal_a = accumulate_recording(&state_a, Nuisance::Baseline, None, &effects);
     let group_rows = (fit.gauge.translation_groups > 1).then(|| fit.gauge.constraints(&array.array, true, 0));
     let sensing = sensing_points(&normal_a.total(), &layout, &fit.params, group_rows.as_ref());
-    // With the clocks, the tests then run on the weights of a Huber M-estimate of the model
-    // extended by every effect (`huber_fixed_point`), on top of the sample spread's: what the
-    // clocks leave is heavy-tailed, and least squares spent its sigma on the tail (a simulated
-    // cross-coupling's sigma 0.84-0.92 of least squares', (bq)). The sensing points keep the
-    // sample spread's weights alone: they test the calibration's own locations.
-    let normal_a = match row_factor.is_some().then(|| huber_fixed_point(&state_a, &effects, normal_a.clone())) {
-        Some(Some(h)) => h.normal,
-        _ => normal_a,
-    };
     let mut held = Vec::with_capacity(held_out.len());
     for (other, score) in held_out.iter().zip(&scores) {
         let (_, st) = predict_with_state(
@@ -399,7 +388,6 @@ fn held_state<'a>(
         dynamic_w,
         ages_s: None,
         row_factor: None,
-        projected_factor: None,
         gravity_m_s2: g,
         t_mid_s: state.t_mid_s,
     }

@@ -6,8 +6,7 @@
 //! - [`blocks`]: each recording's normal equations with the effects' columns;
 //! - [`projected`]: terms fitted on top of the eliminated nuisance; [`trial`]: each effect's rank
 //!   test and held-out trial; [`change`]: the test of a per-recording parameter's change;
-//! - [`sample_spread`]: each rotation-phase output's weight after the sample clocks, and
-//!   [`huber_fixed_point`]: the Huber M-estimate's weights on top of it;
+//! - [`sample_spread`]: each rotation-phase output's weight after the sample clocks;
 //! - [`sensing`]: the sensing points of each package's axes.
 
 pub mod blocks;
@@ -15,7 +14,6 @@ pub mod change;
 pub mod diagnose;
 pub mod diagnosis;
 pub mod effect;
-pub mod huber_fixed_point;
 pub mod output;
 pub mod projected;
 pub mod sample_spread;

@@ -60,64 +60,6 @@ pub struct Block {
     pub residual: DVector<f64>,
     /// Weight of each row (0: not used).
     pub weight: DVector<f64>,
-    /// A factor on each row's weight applied after the local nuisance is eliminated (an
-    /// M-estimate's weights on the projected rows, `huber_fixed_point`); `None`: 1.
-    pub projected_factor: Option<DVector<f64>>,
-}
-
-impl Block {
-    /// The weighted global columns and residual projected off the weighted local columns, and the
-    /// local columns' rank.
-    pub fn projected(&self) -> (DMatrix<f64>, DVector<f64>, usize) {
-        let sw = self.weight.map(|w| w.max(0.0).sqrt());
-        let scale = |m: &DMatrix<f64>| {
-            let mut m = m.clone();
-            for (i, mut row) in m.row_iter_mut().enumerate() {
-                row *= sw[i];
-            }
-            m
-        };
-        let mut x = scale(&self.columns);
-        let mut y = self.residual.component_mul(&sw);
-        let mut rank = 0;
-        if self.local.ncols() > 0 {
-            // Project the weighted rows off the weighted local columns (thin QR is not needed:
-            // the local columns are few and well conditioned after scaling).
-            let l = scale(&self.local);
-            let h = l.tr_mul(&l);
-            let (inv, r) = symmetric_pinv(&h, 1e-12);
-            let px = &l * (&inv * l.tr_mul(&x));
-            let py = &l * (&inv * l.tr_mul(&y));
-            x -= px;
-            y -= py;
-            rank = r;
-        }
-        if let Some(f) = &self.projected_factor {
-            for (i, mut row) in x.row_iter_mut().enumerate() {
-                let sf = f[i].max(0.0).sqrt();
-                row *= sf;
-                y[i] *= sf;
-            }
-        }
-        (x, y, rank)
-    }
-
-    /// Each row's weighted residual with the global columns at `global` and the local unknowns
-    /// refitted (weighted least squares): `sqrt(w) (r - X global - L local)`, before any
-    /// `projected_factor`.
-    pub fn weighted_residual(&self, global: &DVector<f64>) -> DVector<f64> {
-        let sw = self.weight.map(|w| w.max(0.0).sqrt());
-        let e = (&self.residual - &self.columns * global).component_mul(&sw);
-        if self.local.ncols() == 0 {
-            return e;
-        }
-        let mut l = self.local.clone();
-        for (i, mut row) in l.row_iter_mut().enumerate() {
-            row *= sw[i];
-        }
-        let (inv, _) = symmetric_pinv(&l.tr_mul(&l), 1e-12);
-        &e - &l * (&inv * l.tr_mul(&e))
-    }
 }
 
 /// The normal equations of the global columns after the local nuisance is eliminated.
@@ -138,10 +80,6 @@ pub struct Accumulated {
     /// Rows with a positive weight, and local unknowns eliminated.
     pub rows: usize,
     pub local: usize,
-    /// With weights at an M-estimate's fixed point (`huber_fixed_point`): the normal matrix with
-    /// each row weighted by the derivative of its psi-function instead (the M-estimate's
-    /// sensitivity to its parameters), the bread of the robust covariance. `None`: `normal`.
-    pub bread: Option<DMatrix<f64>>,
 }
 
 impl Accumulated {
@@ -157,19 +95,33 @@ impl Accumulated {
             variance_factor: 1.0,
             rows: 0,
             local: 0,
-            bread: None,
         }
-    }
-
-    /// The bread of the robust covariance (see `bread`).
-    pub fn bread_normal(&self) -> &DMatrix<f64> {
-        self.bread.as_ref().unwrap_or(&self.normal)
     }
 
     /// Adds one block, its spread counted as `spread` says.
     pub fn add(&mut self, b: &Block, spread: Spread) {
-        let (x, y, rank) = b.projected();
-        self.local += rank;
+        let sw = b.weight.map(|w| w.max(0.0).sqrt());
+        let scale = |m: &DMatrix<f64>| {
+            let mut m = m.clone();
+            for (i, mut row) in m.row_iter_mut().enumerate() {
+                row *= sw[i];
+            }
+            m
+        };
+        let mut x = scale(&b.columns);
+        let mut y = b.residual.component_mul(&sw);
+        if b.local.ncols() > 0 {
+            // Project the weighted rows off the weighted local columns (thin QR is not needed:
+            // the local columns are few and well conditioned after scaling).
+            let l = scale(&b.local);
+            let h = l.tr_mul(&l);
+            let (inv, rank) = symmetric_pinv(&h, 1e-12);
+            let px = &l * (&inv * l.tr_mul(&x));
+            let py = &l * (&inv * l.tr_mul(&y));
+            x -= px;
+            y -= py;
+            self.local += rank;
+        }
         let s = x.tr_mul(&y);
         self.normal.gemm_tr(1.0, &x, &x, 1.0);
         self.score += &s;
@@ -207,10 +159,6 @@ impl Accumulated {
 
     /// Adds another accumulation.
     pub fn merge(&mut self, o: &Self) {
-        // The bread first: without its own, each side's is its normal matrix before the merge.
-        if self.bread.is_some() || o.bread.is_some() {
-            self.bread = Some(self.bread_normal() + o.bread_normal());
-        }
         self.normal += &o.normal;
         self.score += &o.score;
         self.meat += &o.meat;
@@ -325,21 +273,8 @@ pub fn fit_terms(acc: &Accumulated, nuisance: &[usize], terms: &[usize]) -> Term
         1.0
     };
     let meat_all = sub(&acc.meat, &all, &all) + mn * lowered;
-    // The bread: with weights at an M-estimate's fixed point, the sensitivity of its estimating
-    // equations (rows beyond the clip count nothing in it); otherwise the normal matrix above.
-    let (sinv_b, l) = match &acc.bread {
-        Some(bread) => {
-            let (pg_b, _) = symmetric_pinv(&sub(bread, nuisance, nuisance), 1e-11);
-            let k_b = sub(bread, terms, nuisance) * &pg_b;
-            let s_b = sub(bread, terms, terms) - &k_b * sub(bread, nuisance, terms);
-            let mut l_b = l;
-            l_b.view_mut((0, 0), (e, nuisance.len())).copy_from(&(-&k_b));
-            (seen_inverse(&s_b, &eig, &d), l_b)
-        }
-        None => (sinv.clone(), l),
-    };
     let meat = &l * meat_all * l.transpose();
-    let robust = &sinv_b * meat * &sinv_b;
+    let robust = &sinv * meat * &sinv;
     TermFit {
         value: theta.iter().copied().collect(),
         sigma_model: (0..e).map(|i| sinv[(i, i)].max(0.0).sqrt()).collect(),
@@ -348,18 +283,6 @@ pub fn fit_terms(acc: &Accumulated, nuisance: &[usize], terms: &[usize]) -> Term
         unseen,
         nuisance_change,
     }
-}
-
-/// The inverse of `s` on the directions the rank test saw (`eig`: the eigen-decomposition of the
-/// test's Schur complement scaled by `d`; eigenvalues above [`UNSEEN`]), in the original units.
-fn seen_inverse(s: &DMatrix<f64>, eig: &nalgebra::SymmetricEigen<f64, nalgebra::Dyn>, d: &[f64]) -> DMatrix<f64> {
-    let e = d.len();
-    let seen: Vec<usize> = (0..e).filter(|&q| eig.eigenvalues[q] > UNSEEN).collect();
-    let v = DMatrix::from_fn(e, seen.len(), |i, k| eig.eigenvectors[(i, seen[k])]);
-    let scaled = DMatrix::from_fn(e, e, |i, j| s[(i, j)] * d[i] * d[j]);
-    let (inner, _) = symmetric_pinv(&(v.transpose() * scaled * &v), 1e-12);
-    let full = &v * inner * v.transpose();
-    DMatrix::from_fn(e, e, |i, j| full[(i, j)] * d[i] * d[j])
 }
 
 /// The change of the nuisance `nuisance` that re-adjusting it alone would make (zero at a fit's
@@ -389,63 +312,4 @@ pub fn ss_with(acc: &Accumulated, adjust: &Accumulated, nuisance: &[usize], term
     }
     let x = DVector::from_vec(x);
     acc.ss - 2.0 * x.dot(&subv(&acc.score, &all)) + (x.transpose() * sub(&acc.normal, &all, &all) * &x)[(0, 0)]
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Two blocks of three rows, one local unknown each (an offset), a nuisance column and a term.
-    fn two_blocks(factor: Option<[f64; 3]>) -> Accumulated {
-        let mut acc = Accumulated::zeros(2);
-        for (b, r) in [[0.3, -0.1, 0.5], [-0.2, 0.4, 0.1]].iter().enumerate() {
-            let block = Block {
-                local: DMatrix::from_element(3, 1, 1.0),
-                columns: DMatrix::from_row_slice(3, 2, &[1.0, 0.5, 2.0, -1.0 + b as f64, 0.5, 2.0]),
-                residual: DVector::from_column_slice(r),
-                weight: DVector::from_column_slice(&[1.0, 2.0, 1.0]),
-                projected_factor: factor.map(|f| DVector::from_column_slice(&f)),
-            };
-            acc.add(&block, Spread::Sandwich);
-        }
-        acc
-    }
-
-    #[test]
-    fn a_bread_equal_to_the_normal_changes_nothing_and_twice_it_halves_the_robust_sigma() {
-        let acc = two_blocks(None);
-        let plain = fit_terms(&acc, &[0], &[1]);
-        let mut same = acc.clone();
-        same.bread = Some(acc.normal.clone());
-        let with = fit_terms(&same, &[0], &[1]);
-        assert!((with.sigma_robust[0] - plain.sigma_robust[0]).abs() < 1e-14 * plain.sigma_robust[0]);
-        assert_eq!(with.value, plain.value);
-        // The sandwich B^-1 M B^-1: a bread twice as large halves the sigma; the value and the
-        // model sigma are the normal matrix's.
-        let mut twice = acc.clone();
-        twice.bread = Some(&acc.normal * 2.0);
-        let half = fit_terms(&twice, &[0], &[1]);
-        assert!((half.sigma_robust[0] - plain.sigma_robust[0] / 2.0).abs() < 1e-14 * plain.sigma_robust[0]);
-        assert_eq!(half.value, plain.value);
-        assert_eq!(half.sigma_model, plain.sigma_model);
-    }
-
-    #[test]
-    fn merging_takes_each_sides_bread_or_its_normal_before_the_merge() {
-        // The merge once formed the bread after adding the normal matrices, which counted the side
-        // with a bread twice: every robust sigma of the library read half its size on a clean
-        // simulated recording with Gaussian noise.
-        let statics = two_blocks(None);
-        let mut dynamics = two_blocks(Some([1.0, 0.5, 0.0]));
-        let bread = two_blocks(Some([1.0, 1.0, 0.0])).normal;
-        dynamics.bread = Some(bread.clone());
-        let mut total = statics.clone();
-        total.merge(&dynamics);
-        let expected = &statics.normal + &bread;
-        assert!((total.bread_normal() - expected).abs().max() < 1e-15);
-        assert!((&total.normal - (&statics.normal + &dynamics.normal)).abs().max() < 1e-15);
-        // The projected factor weights the rows after the local elimination: a factor of 1 is no
-        // factor at all.
-        assert_eq!(two_blocks(Some([1.0; 3])).normal, two_blocks(None).normal);
-    }
 }
