@@ -50,8 +50,8 @@ pub fn symmetric_pinv(h: &DMatrix<f64>, tolerance: f64) -> (DMatrix<f64>, usize)
     }
     let largest_diagonal = (0..n).map(|i| h[(i, i)]).fold(0.0f64, f64::max);
     let floor = largest_diagonal * NEGLIGIBLE_DIAGONAL;
-    let d: Vec<f64> =
-        (0..n).map(|i| if h[(i, i)] > 0.0 && h[(i, i)] > floor { 1.0 / h[(i, i)].sqrt() } else { 0.0 }).collect();
+    // `floor` is never negative (the fold starts at 0), so this also leaves out non-positive diagonals.
+    let d: Vec<f64> = (0..n).map(|i| if h[(i, i)] > floor { 1.0 / h[(i, i)].sqrt() } else { 0.0 }).collect();
     let scaled = DMatrix::from_fn(n, n, |i, j| h[(i, j)] * d[i] * d[j]);
     let eig = scaled.symmetric_eigen();
     let largest = eig.eigenvalues.iter().copied().fold(0.0f64, f64::max);
