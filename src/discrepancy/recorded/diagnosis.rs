@@ -78,6 +78,10 @@ pub struct RankTest {
     /// Wald test of every parameter against zero at once, with the robust covariance (over the
     /// seen directions): the effect as a whole, before owners are picked.
     pub p_value_joint: f64,
+    /// Every parameter fitted with its owner's alone (the effect's other owners left out), with
+    /// its robust sigma: the screening that picks the owners (`trial`).
+    pub value_alone: Vec<f64>,
+    pub sigma_alone: Vec<f64>,
 }
 
 /// A whole diagnosis of recordings.

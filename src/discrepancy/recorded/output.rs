@@ -51,6 +51,7 @@ pub fn to_json(recording: &str, array: &str, d: &RecordedDiagnosis, alpha: f64) 
         "rank_tests": d.ranks.iter().map(|r| serde_json::json!({
             "name": r.name, "parameters": r.parameters, "unseen": r.unseen,
             "value": r.value, "sigma": r.sigma, "p_value_joint": r.p_value_joint,
+            "value_alone": r.value_alone, "sigma_alone": r.sigma_alone,
         })).collect::<Vec<_>>(),
         "sensing_points": d.sensing_points.iter().map(|sp| serde_json::json!({
             "package": sp.package + 1,

@@ -226,9 +226,19 @@ fn subv(v: &DVector<f64>, rows: &[usize]) -> DVector<f64> {
 
 /// Fits the columns `terms` of `acc` with the columns `nuisance` re-adjusted (see the module docs).
 pub fn fit_terms(acc: &Accumulated, nuisance: &[usize], terms: &[usize]) -> TermFit {
-    let (pg, _) = symmetric_pinv(&sub(&acc.normal, nuisance, nuisance), 1e-11);
+    fit_terms_given(acc, &nuisance_inverse(acc, nuisance), nuisance, terms)
+}
+
+/// The pseudo-inverse of the nuisance's normal matrix, for [`fit_terms_given`] (many terms
+/// fitted against one nuisance).
+pub fn nuisance_inverse(acc: &Accumulated, nuisance: &[usize]) -> DMatrix<f64> {
+    symmetric_pinv(&sub(&acc.normal, nuisance, nuisance), 1e-11).0
+}
+
+/// [`fit_terms`] with the nuisance's pseudo-inverse `pg` formed once ([`nuisance_inverse`]).
+pub fn fit_terms_given(acc: &Accumulated, pg: &DMatrix<f64>, nuisance: &[usize], terms: &[usize]) -> TermFit {
     let neg = sub(&acc.normal, terms, nuisance);
-    let k = &neg * &pg;
+    let k = &neg * pg;
     let s = sub(&acc.normal, terms, terms) - &k * neg.transpose();
     let b = subv(&acc.score, terms) - &k * subv(&acc.score, nuisance);
     // Rank test in units of the term's own information.
@@ -257,7 +267,7 @@ pub fn fit_terms(acc: &Accumulated, nuisance: &[usize], terms: &[usize]) -> Term
     for i in 0..e {
         l[(i, nuisance.len() + i)] = 1.0;
     }
-    let nuisance_change = &pg * (subv(&acc.score, nuisance) - sub(&acc.normal, nuisance, terms) * &theta);
+    let nuisance_change = pg * (subv(&acc.score, nuisance) - sub(&acc.normal, nuisance, terms) * &theta);
     // The model blocks' information, scaled by how much the extended model lowers their weighted
     // sum of squares: their weights carry the baseline's variance factor, inflated by any signal
     // of the term itself (never below the noise: the factor times this stays at least 1).

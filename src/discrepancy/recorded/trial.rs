@@ -22,7 +22,7 @@
 use super::blocks::RecordingNormal;
 use super::diagnosis::{Gap, RankTest, RecordedFinding};
 use super::effect::{EffectLayout, Owner, RecordedEffect};
-use super::projected::{Accumulated, TermFit, fit_terms, nuisance_step, ss_with};
+use super::projected::{Accumulated, TermFit, fit_terms, fit_terms_given, nuisance_inverse, nuisance_step, ss_with};
 use crate::stats::wald_p;
 
 /// A held-out recording as the trial sees it.
@@ -98,13 +98,23 @@ pub fn try_effects(
         let name = effect.name().to_string();
         let p = effect.parameters(layout);
         let cols = fitting.effect_columns(e_index, p);
-        let mut tf = fit_terms(&total_a, &nuisance_a, &cols);
+        let pg = nuisance_inverse(&total_a, &nuisance_a);
+        let mut tf = fit_terms_given(&total_a, &pg, &nuisance_a, &cols);
         if tf.unseen == 1 && effect.per_owner() == 1 {
             // One direction unseen (a delay common to every package): the values are seen only
             // relative to each other; test each against the median owner (the sparse reading:
             // one package delayed leaves the others at the median).
             relative_to_median(&mut tf);
         }
+        let per = effect.per_owner();
+        let owners = p / per;
+        let owner_columns = |o: usize| (o * per..(o + 1) * per).collect::<Vec<usize>>();
+        let alone: Vec<TermFit> = (0..owners)
+            .map(|o| {
+                let c: Vec<usize> = owner_columns(o).iter().map(|&i| cols[i]).collect();
+                fit_terms_given(&total_a, &pg, &nuisance_a, &c)
+            })
+            .collect();
         out.ranks.push(RankTest {
             name: name.clone(),
             parameters: p,
@@ -113,6 +123,8 @@ pub fn try_effects(
             sigma: tf.sigma_robust.clone(),
             covariance: tf.covariance_robust.clone(),
             p_value_joint: wald_p(&tf.value, &tf.covariance_robust),
+            value_alone: alone.iter().flat_map(|a| a.value.iter().copied()).collect(),
+            sigma_alone: alone.iter().flat_map(|a| a.sigma_robust.iter().copied()).collect(),
         });
         if tf.unseen == p {
             out.not_named.push((
@@ -125,33 +137,52 @@ pub fn try_effects(
             out.not_named.push((name, "differs between recordings: needs held-out recordings (--held-out)".into()));
             continue;
         }
-        // Owners and their tests on the fitting recording.
-        let per = effect.per_owner();
-        let owners = p / per;
+        // Owners and their tests on the fitting recording: screened alone, confirmed together.
         let level = alpha / (owners as f64 * tried);
         let mut selected = Vec::new();
         let mut smallest = 1.0f64;
-        for o in 0..owners {
-            let idx: Vec<usize> = (o * per..(o + 1) * per).collect();
-            let v: Vec<f64> = idx.iter().map(|&i| tf.value[i]).collect();
-            let pv = wald_p(&v, &sub(&tf.covariance_robust, &idx));
+        for (o, a) in alone.iter().enumerate() {
+            let pv = wald_p(&a.value, &a.covariance_robust);
             smallest = smallest.min(pv);
             if pv < level {
-                selected.extend(idx);
+                selected.extend(owner_columns(o));
             }
         }
         if selected.is_empty() {
             out.not_named.push((
                 name,
                 format!(
-                    "no {} passes its test on the fitting recording (smallest p = {smallest:.2e}, level {level:.1e})",
+                    "no {} passes its test on the fitting recording (each alone; smallest p = {smallest:.2e}, level {level:.1e})",
                     owner_word(effect)
                 ),
             ));
             continue;
         }
-        let sel_a: Vec<usize> = selected.iter().map(|&i| cols[i]).collect();
-        let tf_sel = fit_terms(&total_a, &nuisance_a, &sel_a);
+        let screened = selected.len() / per;
+        let mut sel_a: Vec<usize> = selected.iter().map(|&i| cols[i]).collect();
+        let mut tf_sel = fit_terms_given(&total_a, &pg, &nuisance_a, &sel_a);
+        let confirmed: Vec<usize> = (0..screened)
+            .filter(|&q| {
+                let idx: Vec<usize> = (q * per..(q + 1) * per).collect();
+                let v: Vec<f64> = idx.iter().map(|&i| tf_sel.value[i]).collect();
+                wald_p(&v, &sub(&tf_sel.covariance_robust, &idx)) < level
+            })
+            .collect();
+        if confirmed.is_empty() {
+            out.not_named.push((
+                name,
+                format!(
+                    "{screened} {}(s) pass alone on the fitting recording, none fitted together (level {level:.1e})",
+                    owner_word(effect)
+                ),
+            ));
+            continue;
+        }
+        if confirmed.len() < screened {
+            selected = confirmed.iter().flat_map(|&q| selected[q * per..(q + 1) * per].to_vec()).collect();
+            sel_a = selected.iter().map(|&i| cols[i]).collect();
+            tf_sel = fit_terms_given(&total_a, &pg, &nuisance_a, &sel_a);
+        }
         // (The owners kept are fitted alone: with a common direction unseen, the others are held
         // at zero, which fixes it.)
         // Held-out recordings (accumulated in the fitting recording's column layout). What the
