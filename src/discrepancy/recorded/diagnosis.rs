@@ -79,7 +79,7 @@ pub struct RankTest {
     /// seen directions): the effect as a whole, before owners are picked.
     pub p_value_joint: f64,
     /// Every parameter fitted with its owner's alone (the effect's other owners left out), with
-    /// its robust sigma: the screening that picks the owners (`trial`).
+    /// its robust sigma: the sigma a test of one owner has (`trial`; the naming reads the joint fit).
     pub value_alone: Vec<f64>,
     pub sigma_alone: Vec<f64>,
 }

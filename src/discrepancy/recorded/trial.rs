@@ -7,6 +7,18 @@
 //! level `alpha / (owners x effects tried)`. The owners that pass are kept, and the effect refitted
 //! on them alone.
 //!
+//! Each owner's parameters are also fitted **alone** (the baseline re-adjusted, the effect's other
+//! owners left out) and reported beside the joint fit (`RankTest::value_alone`, `sigma_alone`): the
+//! sigma a test of one owner would have. After the sample clocks the joint fit pays 1.5-2.2 times
+//! that in sigma (each sample's six timing unknowns leave 9 of its 24 outputs' degrees of freedom,
+//! in which the owners' columns are collinear; about 1 without the clocks). The naming does not
+//! use it: screening each owner alone and confirming the survivors together was tried
+//! (2026-12-01) and failed four generator tests. A large delay of one package leaked into the
+//! others' single fits through the direction the model absorbs (7 of 8 named); a delay common to
+//! every package was confirmed on a subset that read 3% of it; and a quadratic or cubic scale
+//! factor hidden on one accelerometer was first named as that accelerometer's bias drift, the
+//! effect tried before it (`results/mimu4444/EXPECTATIONS.md`, (bv)-(bw)).
+//!
 //! **On the held-out recordings**, what must differ between recordings is refitted there (poses,
 //! motion, and the turn-on bias and scale factor if they were named). The fitting recording's
 //! extended model is carried over whole: its re-adjusted baseline parameters (an effect's static
@@ -137,60 +149,31 @@ pub fn try_effects(
             out.not_named.push((name, "differs between recordings: needs held-out recordings (--held-out)".into()));
             continue;
         }
-        // Owners and their tests on the fitting recording: screened alone, confirmed together.
+        // Owners and their tests on the fitting recording.
         let level = alpha / (owners as f64 * tried);
         let mut selected = Vec::new();
         let mut smallest = 1.0f64;
-        for (o, a) in alone.iter().enumerate() {
-            let pv = wald_p(&a.value, &a.covariance_robust);
+        for o in 0..owners {
+            let idx = owner_columns(o);
+            let v: Vec<f64> = idx.iter().map(|&i| tf.value[i]).collect();
+            let pv = wald_p(&v, &sub(&tf.covariance_robust, &idx));
             smallest = smallest.min(pv);
             if pv < level {
-                selected.extend(owner_columns(o));
+                selected.extend(idx);
             }
         }
         if selected.is_empty() {
             out.not_named.push((
                 name,
                 format!(
-                    "no {} passes its test on the fitting recording (each alone; smallest p = {smallest:.2e}, level {level:.1e})",
+                    "no {} passes its test on the fitting recording (smallest p = {smallest:.2e}, level {level:.1e})",
                     owner_word(effect)
                 ),
             ));
             continue;
         }
-        let screened = selected.len() / per;
-        let mut sel_a: Vec<usize> = selected.iter().map(|&i| cols[i]).collect();
-        let mut tf_sel = fit_terms_given(&total_a, &pg, &nuisance_a, &sel_a);
-        let confirmed: Vec<usize> = (0..screened)
-            .filter(|&q| {
-                let idx: Vec<usize> = (q * per..(q + 1) * per).collect();
-                let v: Vec<f64> = idx.iter().map(|&i| tf_sel.value[i]).collect();
-                wald_p(&v, &sub(&tf_sel.covariance_robust, &idx)) < level
-            })
-            .collect();
-        if confirmed.is_empty() {
-            out.not_named.push((
-                name,
-                format!(
-                    "{screened} {}(s) pass alone on the fitting recording, none fitted together (level {level:.1e})",
-                    owner_word(effect)
-                ),
-            ));
-            continue;
-        }
-        if confirmed.len() < screened {
-            selected = confirmed.iter().flat_map(|&q| selected[q * per..(q + 1) * per].to_vec()).collect();
-            sel_a = selected.iter().map(|&i| cols[i]).collect();
-            tf_sel = fit_terms_given(&total_a, &pg, &nuisance_a, &sel_a);
-        }
-        // (The owners kept are fitted alone: with a common direction unseen, the others are held
-        // at zero, which fixes it.)
-        // Held-out recordings (accumulated in the fitting recording's column layout). What the
-        // fitting recording's extended model changes is carried over: every baseline parameter and
-        // every carried-over effect named before, re-adjusted with this one, and this one too unless
-        // it is refitted per recording. Only then is the held-out recording's own part refitted.
-        // (The change the term causes: the re-adjustment without it is left out, as the held-out
-        // recordings' baseline gaps leave it out.)
+        let sel_a: Vec<usize> = selected.iter().map(|&i| cols[i]).collect();
+        let tf_sel = fit_terms_given(&total_a, &pg, &nuisance_a, &sel_a);
         let caused = &tf_sel.nuisance_change - nuisance_step(&total_a, &nuisance_a);
         let mut carried_cols = Vec::new();
         let mut carried_vals = Vec::new();
