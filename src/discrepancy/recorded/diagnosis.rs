@@ -80,6 +80,7 @@ pub struct RankTest {
     pub p_value_joint: f64,
     /// Every parameter fitted with its owner's alone (the effect's other owners left out), with
     /// its robust sigma: the sigma a test of one owner has (`trial`; the naming reads the joint fit).
+    /// NaN (JSON null) where the model absorbs every direction of the owner's parameters.
     pub value_alone: Vec<f64>,
     pub sigma_alone: Vec<f64>,
 }

@@ -135,8 +135,8 @@ pub fn try_effects(
             sigma: tf.sigma_robust.clone(),
             covariance: tf.covariance_robust.clone(),
             p_value_joint: wald_p(&tf.value, &tf.covariance_robust),
-            value_alone: alone.iter().flat_map(|a| a.value.iter().copied()).collect(),
-            sigma_alone: alone.iter().flat_map(|a| a.sigma_robust.iter().copied()).collect(),
+            value_alone: alone.iter().flat_map(|a| seen_or_nan(a, &a.value)).collect(),
+            sigma_alone: alone.iter().flat_map(|a| seen_or_nan(a, &a.sigma_robust)).collect(),
         });
         if tf.unseen == p {
             out.not_named.push((
@@ -261,6 +261,12 @@ pub fn try_effects(
         }
     }
     out
+}
+
+/// `v` (one value per parameter of the fit `a`), or NaN for each if the model absorbs every
+/// direction of `a` (nothing is estimated: not a value of 0 with a sigma of 0).
+fn seen_or_nan(a: &TermFit, v: &[f64]) -> Vec<f64> {
+    if a.unseen == v.len() { vec![f64::NAN; v.len()] } else { v.to_vec() }
 }
 
 /// Re-expresses one-parameter-per-owner values relative to the owner at their median, with
