@@ -317,6 +317,10 @@ fn a_quadratic_scale_factor_hidden_in_a_clocked_recording_is_recovered_after_the
     // sigma is, is checked on clean recordings below, not here.
     let (va, sa) = (rank.value_alone[j], rank.sigma_alone[j]);
     assert!(sa.is_finite() && sa > 0.0 && (va - c).abs() < 3.0 * sa, "{va} +- {sa} against {c}");
+    // An effect whose every direction the model absorbs has no single fits either (not 0 +- 0).
+    let absorbed = d.ranks.iter().find(|r| r.name == "cross_axis").expect("tried");
+    assert_eq!(absorbed.unseen, absorbed.parameters);
+    assert!(absorbed.value_alone.iter().chain(&absorbed.sigma_alone).all(|v| v.is_nan()), "{absorbed:?}");
 }
 
 /// The library's sigmas after the clocks against clean simulated recordings (`results/mimu4444/
