@@ -5,15 +5,17 @@
 //! (`projected::fit_terms`), and each owner's (an accelerometer's, a package's, or the shared
 //! set's) parameters are tested against zero by a Wald test with the robust covariance at the
 //! level `alpha / (owners x effects tried)`. The owners that pass are kept, and the effect refitted
-//! on them alone.
+//! on them by themselves.
 //!
 //! Each owner's parameters are also fitted **alone** (the baseline re-adjusted, the effect's other
 //! owners left out) and reported beside the joint fit (`RankTest::value_alone`, `sigma_alone`): the
-//! sigma a test of one owner would have. After the sample clocks the joint fit pays 1.5-2.2 times
-//! that in sigma (each sample's six timing unknowns leave 9 of its 24 outputs' degrees of freedom,
-//! in which the owners' columns are collinear; about 1 without the clocks). The naming does not
-//! use it: screening each owner alone and confirming the survivors together was tried
-//! (2026-12-01) and failed four generator tests. A large delay of one package leaked into the
+//! sigma a test of one owner would have (not an estimate of an effect on many owners: the others'
+//! part leaks in). After the sample clocks the joint fit pays 1.3-1.9 times that in sigma on the
+//! MIMU4444 diagnoses (quadratic scale factor and cross-coupling; each sample's six timing unknowns
+//! leave 9 of its 24 outputs' degrees of freedom, in which the owners' columns are collinear;
+//! without the clocks 0.94-1.04 for the quadratic scale factor, 0.8-1.3 for the cross-coupling).
+//! The naming does not use it: screening each owner alone and confirming the survivors together
+//! was tried (2026-12-01) and failed four generator tests. A large delay of one package leaked into the
 //! others' single fits through the direction the model absorbs (7 of 8 named); a delay common to
 //! every package was confirmed on a subset that read 3% of it; and a quadratic or cubic scale
 //! factor hidden on one accelerometer was first named as that accelerometer's bias drift, the
@@ -174,6 +176,14 @@ pub fn try_effects(
         }
         let sel_a: Vec<usize> = selected.iter().map(|&i| cols[i]).collect();
         let tf_sel = fit_terms_given(&total_a, &pg, &nuisance_a, &sel_a);
+        // (The owners kept are fitted by themselves: with a common direction unseen, the others
+        // are held at zero, which fixes it.)
+        // Held-out recordings (accumulated in the fitting recording's column layout). What the
+        // fitting recording's extended model changes is carried over: every baseline parameter and
+        // every carried-over effect named before, re-adjusted with this one, and this one too unless
+        // it is refitted per recording. Only then is the held-out recording's own part refitted.
+        // (The change the term causes: the re-adjustment without it is left out, as the held-out
+        // recordings' baseline gaps leave it out.)
         let caused = &tf_sel.nuisance_change - nuisance_step(&total_a, &nuisance_a);
         let mut carried_cols = Vec::new();
         let mut carried_vals = Vec::new();
