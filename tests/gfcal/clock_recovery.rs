@@ -339,13 +339,12 @@ fn the_librarys_sigmas_after_the_clocks_hold_on_clean_simulated_recordings() {
         let d = diagnose_recordings(&sim.recording, &cell.array, &[], &settings, 0.01).expect("diagnosed");
         let named: Vec<&str> = d.findings.iter().map(|f| f.name.as_str()).filter(|n| *n != "sample_clock").collect();
         assert!(named.is_empty(), "seed {seed} names {named:?}");
-        for name in ["scale_factor_quadratic", "cross_coupling"] {
+        for (name, alone) in
+            [("scale_factor_quadratic", "scale_factor_quadratic alone"), ("cross_coupling", "cross_coupling alone")]
+        {
             let r = d.ranks.iter().find(|r| r.name == name).expect("tried");
             z.entry(name).or_default().extend(r.value.iter().zip(&r.sigma).map(|(v, s)| v / s));
-            let alone = r.value_alone.iter().zip(&r.sigma_alone).map(|(v, s)| v / s);
-            z.entry(if name == "cross_coupling" { "cross_coupling alone" } else { "scale_factor_quadratic alone" })
-                .or_default()
-                .extend(alone);
+            z.entry(alone).or_default().extend(r.value_alone.iter().zip(&r.sigma_alone).map(|(v, s)| v / s));
         }
     }
     for (name, v) in &z {
