@@ -74,13 +74,35 @@ pub const NEGLIGIBLE_DIAGONAL: f64 = 1e-200;
 
 /// The p-value of a Wald test of `value` (zero mean) with covariance `cov`, on its rank.
 pub fn wald_p(value: &[f64], cov: &DMatrix<f64>) -> f64 {
+    match wald_statistic(value, cov) {
+        Some((w, rank)) => chi2_sf(w, rank as f64).filter(|p| p.is_finite()).unwrap_or(1.0),
+        None => 1.0,
+    }
+}
+
+/// The Wald statistic of `value` (zero mean) with covariance `cov` and its degrees of freedom (the
+/// covariance's rank); `None` where the rank is zero.
+pub fn wald_statistic(value: &[f64], cov: &DMatrix<f64>) -> Option<(f64, usize)> {
     let (inv, rank) = symmetric_pinv(cov, 1e-10);
     if rank == 0 {
-        return 1.0;
+        return None;
     }
     let v = DVector::from_column_slice(value);
-    let w = (v.transpose() * inv * &v)[(0, 0)];
-    chi2_sf(w, rank as f64).filter(|p| p.is_finite()).unwrap_or(1.0)
+    Some(((v.transpose() * inv * &v)[(0, 0)], rank))
+}
+
+/// `ln P(X > x)` for `X ~ chi^2(dof)`: to compare statistics of different degrees of freedom where
+/// their tails underflow (a p-value of 0 orders nothing). The tail itself where it is above 1e-300;
+/// beyond, its leading asymptotic term `ln((x/2)^(dof/2 - 1) e^(-x/2) / Gamma(dof/2))`, whose
+/// relative error there is below `dof / x` (x above about 1,300).
+pub fn chi2_log_sf(x: f64, dof: f64) -> f64 {
+    match chi2_sf(x, dof) {
+        Some(p) if p > 1e-300 => p.ln(),
+        _ => {
+            let h = 0.5 * x.max(f64::MIN_POSITIVE);
+            (0.5 * dof - 1.0) * h.ln() - h - statrs::function::gamma::ln_gamma(0.5 * dof)
+        }
+    }
 }
 
 #[cfg(test)]
@@ -143,5 +165,23 @@ mod tests {
         let p = wald_p(&[2.0], &cov);
         assert!((p - 0.3173105078629141).abs() < 1e-9, "{p}");
         assert_eq!(wald_p(&[1.0], &DMatrix::zeros(1, 1)), 1.0);
+    }
+
+    #[test]
+    fn the_log_tail_is_the_tail_s_log_and_its_asymptote_beyond() {
+        for dof in [1.0, 2.0, 9.0] {
+            // Where the tail is representable, its logarithm.
+            let p = chi2_sf(100.0, dof).expect("tail");
+            assert_eq!(chi2_log_sf(100.0, dof), p.ln());
+            // The asymptote against the tail near the switch (x about 1,300-1,380), where both exist.
+            for x in [1200.0, 1300.0] {
+                let exact = chi2_sf(x, dof).expect("tail").ln();
+                let h = 0.5 * x;
+                let asymptote = (0.5 * dof - 1.0) * f64::ln(h) - h - statrs::function::gamma::ln_gamma(0.5 * dof);
+                assert!(((asymptote - exact) / exact).abs() < dof / x, "{dof} {x}: {asymptote} {exact}");
+            }
+            // Beyond, finite and decreasing.
+            assert!(chi2_log_sf(2000.0, dof).is_finite() && chi2_log_sf(2000.0, dof) < chi2_log_sf(1900.0, dof));
+        }
     }
 }

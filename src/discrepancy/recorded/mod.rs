@@ -17,6 +17,7 @@ pub mod effect;
 pub mod output;
 pub mod projected;
 pub mod sample_spread;
+pub mod selection;
 pub mod sensing;
 pub mod trial;
 

@@ -1,25 +1,23 @@
-//! The library of `recorded_effect` tried on recordings, one effect after another, each on top of
-//! the effects already named.
+//! The library of `recorded_effect` tried on recordings.
 //!
-//! **On the fitting recording** an effect's parameters are fitted with the baseline's re-adjusted
-//! (`projected::fit_terms`), and each owner's (an accelerometer's, a package's, or the shared
-//! set's) parameters are tested against zero by a Wald test with the robust covariance at the
-//! level `alpha / (owners x effects tried)`. The owners that pass are kept, and the effect refitted
-//! on them by themselves.
+//! **On the fitting recording** the owners of the effects (an accelerometer's, a package's, or the
+//! shared set's parameters) are selected across the effects, forward one owner at a time, each
+//! conditional on those already taken, then backward ([`super::selection`]); each owner's Wald test
+//! with the robust covariance is at its effect's level `alpha / (owners x effects tried)`. The
+//! effects with owners kept are then tried in the order they entered the selection, each refitted
+//! on its owners by themselves, on top of the effects already named; then the rest, for their
+//! rank tests.
 //!
-//! Each owner's parameters are also fitted **alone** (the baseline re-adjusted, the effect's other
-//! owners left out) and reported beside the joint fit (`RankTest::value_alone`, `sigma_alone`): the
-//! sigma a test of one owner would have (not an estimate of an effect on many owners: the others'
-//! part leaks in). After the sample clocks the joint fit pays 1.3-1.9 times that in sigma on the
-//! MIMU4444 diagnoses (quadratic scale factor and cross-coupling; each sample's six timing unknowns
-//! leave 9 of its 24 outputs' degrees of freedom, in which the owners' columns are collinear;
-//! without the clocks 0.94-1.04 for the quadratic scale factor, 0.8-1.3 for the cross-coupling).
-//! The naming does not use it: screening each owner alone and confirming the survivors together
-//! was tried (2026-12-01) and failed four generator tests. A large delay of one package leaked into the
-//! others' single fits through the direction the model absorbs (7 of 8 named); a delay common to
-//! every package was confirmed on a subset that read 3% of it; and a quadratic or cubic scale
-//! factor hidden on one accelerometer was first named as that accelerometer's bias drift, the
-//! effect tried before it (`results/mimu4444/EXPECTATIONS.md`, (bv)-(bw)).
+//! Each effect's rank test (`RankTest`) fits all its owners jointly, on top of the effects named
+//! before it; each owner is also fitted **alone** (the baseline re-adjusted, the effect's other
+//! owners left out: `value_alone`, `sigma_alone`, the sigma a test of one owner has). After the
+//! sample clocks the joint fit pays 1.3-1.9 times that in sigma on the MIMU4444 diagnoses
+//! (quadratic scale factor and cross-coupling; each sample's six timing unknowns leave 9 of its
+//! 24 outputs' degrees of freedom, in which the owners' columns are collinear; without the clocks
+//! 0.94-1.04 for the quadratic scale factor, 0.8-1.3 for the cross-coupling). Until 2026-12-01 the
+//! naming tested each owner in the joint fit of its effect, effect by effect in a fixed order;
+//! screening each owner alone failed four generator tests (`results/mimu4444/EXPECTATIONS.md`
+//! (bv)-(bw)), which the selection passes ((by)).
 //!
 //! **On the held-out recordings**, what must differ between recordings is refitted there (poses,
 //! motion, and the turn-on bias and scale factor if they were named). The fitting recording's
@@ -37,6 +35,7 @@ use super::blocks::RecordingNormal;
 use super::diagnosis::{Gap, RankTest, RecordedFinding};
 use super::effect::{EffectLayout, Owner, RecordedEffect};
 use super::projected::{Accumulated, TermFit, fit_terms, fit_terms_given, nuisance_inverse, nuisance_step, ss_with};
+use super::selection::{Candidate, select};
 use crate::stats::wald_p;
 
 /// A held-out recording as the trial sees it.
@@ -57,10 +56,6 @@ pub struct TrialOutcome {
     pub fitting_after_each: Vec<(String, Gap)>,
     /// Per held-out recording, its gap after each named effect.
     pub held_out_after_each: Vec<Vec<(String, Gap)>>,
-}
-
-fn sub(m: &nalgebra::DMatrix<f64>, idx: &[usize]) -> nalgebra::DMatrix<f64> {
-    nalgebra::DMatrix::from_fn(idx.len(), idx.len(), |i, j| m[(idx[i], idx[j])])
 }
 
 /// Both phases' weighted sums of squares with the nuisance re-adjusted and `terms` at `theta`.
@@ -108,7 +103,37 @@ pub fn try_effects(
         .map(|h| phase_ss(&h.normal.statics, &h.normal.dynamics, &h.normal.nuisance(), &[], &[]))
         .collect();
     let tried = effects.len().max(1) as f64;
+    // The owners the fitting recording holds, selected across the effects (`selection`).
+    let mut candidates = Vec::new();
     for (e_index, effect) in effects.iter().enumerate() {
+        if effect.per_recording() && held_out.is_empty() {
+            continue;
+        }
+        let (p, per) = (effect.parameters(layout), effect.per_owner());
+        let cols = fitting.effect_columns(e_index, p);
+        for owner in 0..p / per {
+            candidates.push(Candidate {
+                effect: e_index,
+                owner,
+                columns: cols[owner * per..(owner + 1) * per].to_vec(),
+                level: alpha / ((p / per) as f64 * tried),
+            });
+        }
+    }
+    let selection = select(&total_a, &nuisance_a, &candidates);
+    // The effects with owners kept, in the order they first entered, then the others.
+    let mut order: Vec<usize> = Vec::new();
+    for &c in &selection.kept {
+        if !order.contains(&candidates[c].effect) {
+            order.push(candidates[c].effect);
+        }
+    }
+    order.extend((0..effects.len()).filter(|e| !order.contains(e)).collect::<Vec<_>>());
+    // Reported in the library's order whatever the order tried.
+    let mut ranks: Vec<Option<RankTest>> = vec![None; effects.len()];
+    let mut not_named: Vec<Vec<(String, String)>> = vec![Vec::new(); effects.len()];
+    for &e_index in &order {
+        let effect = &effects[e_index];
         let name = effect.name().to_string();
         let p = effect.parameters(layout);
         let cols = fitting.effect_columns(e_index, p);
@@ -129,7 +154,7 @@ pub fn try_effects(
                 fit_terms_given(&total_a, &pg, &nuisance_a, &c)
             })
             .collect();
-        out.ranks.push(RankTest {
+        ranks[e_index] = Some(RankTest {
             name: name.clone(),
             parameters: p,
             unseen: tf.unseen,
@@ -141,34 +166,37 @@ pub fn try_effects(
             sigma_alone: alone.iter().flat_map(|a| seen_or_nan(a, &a.sigma_robust)).collect(),
         });
         if tf.unseen == p {
-            out.not_named.push((
+            not_named[e_index].push((
                 name,
                 format!("every one of its {p} directions is absorbed by the model (rank test): no recording of this kind can see it"),
             ));
             continue;
         }
         if effect.per_recording() && held_out.is_empty() {
-            out.not_named.push((name, "differs between recordings: needs held-out recordings (--held-out)".into()));
+            not_named[e_index]
+                .push((name, "differs between recordings: needs held-out recordings (--held-out)".into()));
             continue;
         }
-        // Owners and their tests on the fitting recording.
+        // The owners the selection kept, in the owners' order.
         let level = alpha / (owners as f64 * tried);
-        let mut selected = Vec::new();
-        let mut smallest = 1.0f64;
-        for o in 0..owners {
-            let idx = owner_columns(o);
-            let v: Vec<f64> = idx.iter().map(|&i| tf.value[i]).collect();
-            let pv = wald_p(&v, &sub(&tf.covariance_robust, &idx));
-            smallest = smallest.min(pv);
-            if pv < level {
-                selected.extend(idx);
-            }
-        }
+        let of_effect = |c: &usize| candidates[*c].effect == e_index;
+        let mut kept: Vec<usize> =
+            selection.kept.iter().filter(|c| of_effect(c)).map(|&c| candidates[c].owner).collect();
+        kept.sort_unstable();
+        let selected: Vec<usize> = kept.iter().flat_map(|&o| owner_columns(o)).collect();
         if selected.is_empty() {
-            out.not_named.push((
+            let smallest =
+                (0..candidates.len()).filter(of_effect).map(|c| selection.p_given_kept[c]).fold(1.0f64, f64::min);
+            let dropped = selection.dropped.iter().filter(|c| of_effect(c)).count();
+            let then = if dropped > 0 {
+                format!("; {dropped} taken, then dropped by the backward step")
+            } else {
+                String::new()
+            };
+            not_named[e_index].push((
                 name,
                 format!(
-                    "no {} passes its test on the fitting recording (smallest p = {smallest:.2e}, level {level:.1e})",
+                    "no {} passes its test on the fitting recording given the owners kept (smallest p = {smallest:.2e}, level {level:.1e}{then})",
                     owner_word(effect)
                 ),
             ));
@@ -228,7 +256,7 @@ pub fn try_effects(
                     "refitted on the held-out recordings, fails its test on at least one (largest p = {largest:.2e}, level {held_level:.1e})"
                 )
             };
-            out.not_named.push((
+            not_named[e_index].push((
                 name,
                 format!("{why} ({} of its {} owners pass on the fitting recording)", selected.len() / per, owners),
             ));
@@ -270,6 +298,8 @@ pub fn try_effects(
             out.held_out_after_each[k].push((name.clone(), scaled(&held_out[k].gap, base_b[k], now)));
         }
     }
+    out.ranks = ranks.into_iter().flatten().collect();
+    out.not_named = not_named.into_iter().flatten().collect();
     out
 }
 
