@@ -284,7 +284,7 @@ fn the_diagnosis_names_sample_clock_with_the_clocks_and_nothing_without() {
 /// recording names nothing of the library; the same recording with a quadratic scale factor of
 /// 4e-5 /(m/s^2) on one accelerometer's true reading (0.04 m/s^2 at 32 m/s^2; set before the first
 /// run at about eight times the sigma the route of the time printed there, 5.3e-6) is recovered
-/// within 3 sigma, and named on no other accelerometer. Until 2026-12-01 the library was tried on
+/// within 3 sigma, and named on it and no other accelerometer. Until 2026-12-01 the library was tried on
 /// the outputs within the calibration's Huber clip, which selects on the residual: the effect read
 /// 4.9e-6 +- 7.6e-6 there (12% of its size; 3.7e-5 +- 1.7e-5 now, too few sigmas to be named on
 /// 30 s of rotation, and no sharper than the same recording simulated without clocks, 1.2e-5). The
@@ -305,7 +305,10 @@ fn a_quadratic_scale_factor_hidden_in_a_clocked_recording_is_recovered_after_the
     let hidden = super::recorded_generators::with_power(sim.recording.clone(), array, &truth, j, c, 2);
     let d = diagnose_recordings(&hidden, array, &[], &settings, 0.01).expect("diagnosed");
     let named = library(&d);
-    assert!(named.iter().all(|(name, a)| name == "scale_factor_quadratic" && *a == Some(j)), "{named:?}");
+    // Named, on it alone: its single fit (4.9 sigma) is what the selection across the effects tests
+    // (`discrepancy::recorded::selection`; `results/mimu4444/EXPECTATIONS.md` (by), written before the
+    // run). Until then it was tested in the joint fit of every owner (2.2 sigma) and named nowhere.
+    assert_eq!(named, [("scale_factor_quadratic".to_string(), Some(j))], "{:?}", d.not_named);
     let rank = d.ranks.iter().find(|r| r.name == "scale_factor_quadratic").expect("tried");
     let (v, s) = (rank.value[j], rank.sigma[j]);
     assert!(s.is_finite() && s > 0.0 && (v - c).abs() < 3.0 * s, "{v} +- {s} against {c}");
