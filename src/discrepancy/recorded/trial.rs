@@ -4,9 +4,11 @@
 //! shared set's parameters) are selected across the effects, forward one owner at a time, each
 //! conditional on those already taken, then backward ([`super::selection`]); each owner's Wald test
 //! with the robust covariance is at its effect's level `alpha / (owners x effects tried)`. The
-//! effects with owners kept are then tried in the order they entered the selection, each refitted
-//! on its owners by themselves, on top of the effects already named; then the rest, for their
-//! rank tests.
+//! effects with owners kept are then tried, each refitted on its owners by themselves, on top of
+//! the effects already named: those that differ between recordings first (on the held-out
+//! recordings a property of the hardware is judged on top of what is refitted on each, as on top
+//! of the turn-on effects), each group in the order its effects entered the selection; then the
+//! rest, for their rank tests.
 //!
 //! Each effect's rank test (`RankTest`) fits all its owners jointly, on top of the effects named
 //! before it; each owner is also fitted **alone** (the baseline re-adjusted, the effect's other
@@ -121,11 +123,16 @@ pub fn try_effects(
         }
     }
     let selection = select(&total_a, &nuisance_a, &candidates);
-    // The effects with owners kept, in the order they first entered, then the others.
+    // The effects with owners kept: those that differ between recordings first (what is refitted on
+    // each recording is in the model before a property of the hardware is judged on it, as the
+    // turn-on effects are), each group in the order its effects first entered; then the others.
     let mut order: Vec<usize> = Vec::new();
-    for &c in &selection.kept {
-        if !order.contains(&candidates[c].effect) {
-            order.push(candidates[c].effect);
+    for per_recording in [true, false] {
+        for &c in &selection.kept {
+            let e = candidates[c].effect;
+            if effects[e].per_recording() == per_recording && !order.contains(&e) {
+                order.push(e);
+            }
         }
     }
     order.extend((0..effects.len()).filter(|e| !order.contains(e)).collect::<Vec<_>>());
