@@ -138,3 +138,73 @@ pub fn select(total: &Accumulated, nuisance: &[usize], candidates: &[Candidate])
     }
     Selection { kept: taken, p_given_kept, dropped }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::discrepancy::recorded::projected::{Block, Spread};
+    use nalgebra::{DMatrix, DVector};
+    use rand_distr::{Distribution, StandardNormal};
+
+    /// A regression whose truth is known by construction: `y = 0.5 x1 + 0.5 x2 + noise`, with a
+    /// look-alike `A = (x1 + x2) / sqrt(2) + 0.5 e` that correlates with the truth more than either
+    /// true column does, and a column of pure noise. Forward takes the look-alike first, then both
+    /// true columns; the joint fit of the three no longer holds the look-alike, which the backward
+    /// step drops. The noise column is not taken.
+    #[test]
+    fn a_look_alike_taken_first_is_dropped_once_the_true_columns_are_in() {
+        let mut rng = crate::rng::trial_rng(11, 0);
+        let mut total = Accumulated::zeros(5);
+        let mut draw = || -> f64 { StandardNormal.sample(&mut rng) };
+        for _ in 0..4000 {
+            let (x1, x2, e, noise, column_noise) = (draw(), draw(), draw(), draw(), draw());
+            let look_alike = (x1 + x2) / 2f64.sqrt() + 0.5 * e;
+            let block = Block {
+                local: DMatrix::zeros(1, 0),
+                columns: DMatrix::from_row_slice(1, 5, &[1.0, look_alike, x1, x2, column_noise]),
+                residual: DVector::from_element(1, 0.5 * x1 + 0.5 * x2 + noise),
+                weight: DVector::from_element(1, 1.0),
+            };
+            total.add(&block, Spread::Sandwich);
+        }
+        let candidate = |effect: usize, owner: usize, column: usize| Candidate {
+            effect,
+            owner,
+            columns: vec![column],
+            level: 1e-4,
+        };
+        let candidates = [candidate(0, 0, 1), candidate(1, 0, 2), candidate(1, 1, 3), candidate(2, 0, 4)];
+        let s = select(&total, &[0], &candidates);
+        let mut kept = s.kept.clone();
+        kept.sort_unstable();
+        assert_eq!(kept, [1, 2], "{s:?}");
+        assert_eq!(s.dropped, [0], "{s:?}");
+        // The look-alike, refitted with the true columns, and the noise column: not significant.
+        assert!(s.p_given_kept[0] > 1e-4 && s.p_given_kept[3] > 1e-4, "{s:?}");
+        assert!(s.p_given_kept[1] < 1e-10 && s.p_given_kept[2] < 1e-10, "{s:?}");
+    }
+
+    /// Candidates every direction of which the nuisance absorbs are never taken (p = 1), and with
+    /// nothing in the residual nothing is.
+    #[test]
+    fn an_absorbed_candidate_and_a_clean_residual_take_nothing() {
+        let mut rng = crate::rng::trial_rng(12, 0);
+        let mut total = Accumulated::zeros(3);
+        for _ in 0..500 {
+            let x: f64 = StandardNormal.sample(&mut rng);
+            let noise: f64 = StandardNormal.sample(&mut rng);
+            let block = Block {
+                local: DMatrix::zeros(1, 0),
+                columns: DMatrix::from_row_slice(1, 3, &[x, 2.0 * x, 1.0]),
+                residual: DVector::from_element(1, 3.0 * x + noise),
+                weight: DVector::from_element(1, 1.0),
+            };
+            total.add(&block, Spread::Sandwich);
+        }
+        // Column 1 is twice column 0, the nuisance: absorbed whatever the residual says.
+        let absorbed = Candidate { effect: 0, owner: 0, columns: vec![1], level: 0.5 };
+        let s = select(&total, &[0, 2], &[absorbed]);
+        assert!(s.kept.is_empty() && s.dropped.is_empty(), "{s:?}");
+        assert_eq!(s.p_given_kept, [1.0]);
+    }
+}
