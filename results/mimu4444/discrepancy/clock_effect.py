@@ -49,8 +49,9 @@ def main(folder):
     print("misfit by chance; the clocks read at shifted times take 58.6-92.4% of these misfits (the diagnoses' text),")
     print("so the held-out numbers after the clocks are optimistic. Sigma columns: RMS over the effect's parameters of")
     print("its rank test's sigma, without the clocks (no_clocks/) -> with them: the joint fit of every owner's")
-    print("parameters (`sigma`, what the naming reads), and each owner's fitted alone, the effect's other owners left out")
-    print("(`sigma_alone`: the sigma a test of one owner has).\n")
+    print("parameters (`sigma`), and each owner's fitted alone, the effect's other owners left out (`sigma_alone`:")
+    print("the sigma a test of one owner has, which the naming reads while no other owner is taken; since the")
+    print("eleventh session of 2026-12-01 the owners are selected one at a time, each given those already taken).\n")
     print("| recording | mode | sample_clock | fitting rotation-phase chi2/dof | held-out rotation-phase chi2/dof (mean) | quadratic SF sigma | cross-coupling sigma | quadratic SF sigma alone | cross-coupling sigma alone | explanation |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     ratios = {(n, key): [] for key in ("sigma", "sigma_alone") for n in ("scale_factor_quadratic", "cross_coupling")}
