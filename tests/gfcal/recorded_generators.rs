@@ -297,7 +297,8 @@ fn a_cubic_scale_factor_hidden_by_the_simulator_is_named_on_its_accelerometer() 
 ///
 /// History: with the turn-on test's sigmas taken as the held-out refit's and the fitting recording's own
 /// sigma combined, 15 of 100 pairs named `bias_turn_on`. With the changes' whole covariance
-/// (`discrepancy::recorded::change`), 1 of 100 (seed 34, `bias_turn_on`), run on 2026-11-24.
+/// (`discrepancy::recorded::change`), 1 of 100 (seed 34, `bias_turn_on`), run on 2026-11-24; the same with the
+/// library's owners selected across the effects (`discrepancy::recorded::selection`), run on 2026-12-01.
 #[test]
 #[ignore = "about 8 minutes on two cores; run it after any change to the diagnosis of recordings"]
 fn clean_simulated_pairs_name_nothing_in_at_least_97_of_100_seeds() {

@@ -4,8 +4,9 @@
 //! - [`diagnose`]: the workflow; [`diagnosis`]: what it finds;
 //! - [`effect`]: the library of real-recording effects and their regressors;
 //! - [`blocks`]: each recording's normal equations with the effects' columns;
-//! - [`projected`]: terms fitted on top of the eliminated nuisance; [`trial`]: each effect's rank
-//!   test and held-out trial; [`change`]: the test of a per-recording parameter's change;
+//! - [`projected`]: terms fitted on top of the eliminated nuisance; [`selection`]: the owners the
+//!   fitting recording holds, selected across the effects; [`trial`]: each effect's rank test and
+//!   held-out trial; [`change`]: the test of a per-recording parameter's change;
 //! - [`sample_spread`]: each rotation-phase output's weight after the sample clocks;
 //! - [`sensing`]: the sensing points of each package's axes.
 
