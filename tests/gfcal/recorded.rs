@@ -462,7 +462,12 @@ fn a_common_advance_injected_into_real_recordings_moves_the_use_gyro_delay_with_
             // The array file's `accelerometer_lag_ms` (1.5 ms) takes the accelerometers' common lag out
             // before the diagnosis (since 2026-11-29; before, the clean pair read 1.2 ms here).
             assert!(before.abs() < 0.3e-3, "package {}: the clean lag {before}", m + 1);
-            assert!(named.contains(&Some(m)), "package {} named after {value} s: {named:?} {:?}", m + 1, with.not_named);
+            assert!(
+                named.contains(&Some(m)),
+                "package {} named after {value} s: {named:?} {:?}",
+                m + 1,
+                with.not_named
+            );
             // The criterion: the injected magnitude within its sigma, on top of the clean pair's value.
             let moved = after - before;
             let want = if value.starts_with('-') { -1.2e-3 } else { 1.2e-3 };

@@ -37,7 +37,7 @@ use super::blocks::RecordingNormal;
 use super::diagnosis::{Gap, RankTest, RecordedFinding};
 use super::effect::{EffectLayout, Owner, RecordedEffect};
 use super::projected::{Accumulated, TermFit, fit_terms, fit_terms_given, nuisance_inverse, nuisance_step, ss_with};
-use super::selection::{Candidate, select};
+use super::selection::{Candidate, Whole, select};
 use crate::stats::wald_p;
 
 /// A held-out recording as the trial sees it.
@@ -122,7 +122,15 @@ pub fn try_effects(
             });
         }
     }
-    let selection = select(&total_a, &nuisance_a, &candidates);
+    // Each effect of several owners also whole, at its share of the familywise level.
+    let mut wholes = Vec::new();
+    for e_index in 0..effects.len() {
+        let members: Vec<usize> = (0..candidates.len()).filter(|&c| candidates[c].effect == e_index).collect();
+        if members.len() > 1 {
+            wholes.push(Whole { members, level: alpha / tried });
+        }
+    }
+    let selection = select(&total_a, &nuisance_a, &candidates, &wholes);
     // The effects with owners kept: those that differ between recordings first (what is refitted on
     // each recording is in the model before a property of the hardware is judged on it, as the
     // turn-on effects are), each group in the order its effects first entered; then the others.
