@@ -3,7 +3,8 @@
 //! **On the fitting recording** the owners of the effects (an accelerometer's, a package's, or the
 //! shared set's parameters) are selected across the effects, forward one owner at a time, each
 //! conditional on those already taken, then backward ([`super::selection`]); each owner's Wald test
-//! with the robust covariance is at its effect's level `alpha / (owners x effects tried)`. The
+//! with the robust covariance is at its effect's level `alpha / (owners x effects tried)`, and an
+//! effect of several owners also enters whole at `alpha / effects tried`. The
 //! effects with owners kept are then tried, each refitted on its owners by themselves, on top of
 //! the effects already named: those that differ between recordings first (on the held-out
 //! recordings a property of the hardware is judged on top of what is refitted on each, as on top
