@@ -74,54 +74,29 @@ fn tested(value: &[f64], cov: &nalgebra::DMatrix<f64>, positions: &[usize]) -> (
     }
 }
 
-/// Each candidate not in `taken` tested given `taken` (the tail and its logarithm; 1 and 0 where
-/// the model absorbs it), `None` for those taken.
-fn each_given(
+/// Each set of candidates tested given `taken`: its members not yet taken fitted together, with
+/// every column taken re-adjusted (the tail and its logarithm; 1 and 0 where the model absorbs
+/// them), `None` where every member is taken. One nuisance inverse serves every set.
+fn sets_given(
     total: &Accumulated,
     nuisance: &[usize],
     candidates: &[Candidate],
+    sets: &[Vec<usize>],
     taken: &[usize],
 ) -> Vec<Option<(f64, f64)>> {
     let mut given = nuisance.to_vec();
     given.extend(taken.iter().flat_map(|&c| candidates[c].columns.iter().copied()));
     let pg = nuisance_inverse(total, &given);
-    candidates
-        .iter()
-        .enumerate()
-        .map(|(c, cand)| {
-            if taken.contains(&c) {
+    sets.iter()
+        .map(|set| {
+            let columns: Vec<usize> = set
+                .iter()
+                .filter(|c| !taken.contains(c))
+                .flat_map(|&c| candidates[c].columns.iter().copied())
+                .collect();
+            if columns.is_empty() {
                 return None;
             }
-            let fit = fit_terms_given(total, &pg, &given, &cand.columns);
-            Some(if fit.unseen == cand.columns.len() {
-                (1.0, 0.0)
-            } else {
-                tested(&fit.value, &fit.covariance_robust, &(0..cand.columns.len()).collect::<Vec<_>>())
-            })
-        })
-        .collect()
-}
-
-/// Each of `wholes` tested given `taken`: its members not yet taken fitted together (`None` where
-/// every member is taken).
-fn wholes_given(
-    total: &Accumulated,
-    nuisance: &[usize],
-    candidates: &[Candidate],
-    wholes: &[Whole],
-    taken: &[usize],
-) -> Vec<Option<(f64, f64)>> {
-    let mut given = nuisance.to_vec();
-    given.extend(taken.iter().flat_map(|&c| candidates[c].columns.iter().copied()));
-    let pg = nuisance_inverse(total, &given);
-    wholes
-        .iter()
-        .map(|w| {
-            let left: Vec<usize> = w.members.iter().copied().filter(|c| !taken.contains(c)).collect();
-            if left.is_empty() {
-                return None;
-            }
-            let columns: Vec<usize> = left.iter().flat_map(|&c| candidates[c].columns.iter().copied()).collect();
             let fit = fit_terms_given(total, &pg, &given, &columns);
             Some(if fit.unseen == columns.len() {
                 (1.0, 0.0)
@@ -135,28 +110,27 @@ fn wholes_given(
 /// Selects among `candidates`, and `wholes` of them, on `total` with `nuisance` re-adjusted (see
 /// the module docs).
 pub fn select(total: &Accumulated, nuisance: &[usize], candidates: &[Candidate], wholes: &[Whole]) -> Selection {
+    // Each candidate alone, then each effect whole, with their levels.
+    let mut sets: Vec<(Vec<usize>, f64)> =
+        candidates.iter().enumerate().map(|(c, cand)| (vec![c], cand.level)).collect();
+    sets.extend(wholes.iter().map(|w| (w.members.clone(), w.level)));
+    let members: Vec<Vec<usize>> = sets.iter().map(|(m, _)| m.clone()).collect();
     let mut taken: Vec<usize> = Vec::new();
     loop {
-        let tests = each_given(total, nuisance, candidates, &taken);
-        let mut best: Option<(Vec<usize>, f64)> = None;
-        for (c, t) in tests.iter().enumerate() {
-            if let Some((p, log_p)) = *t
-                && p < candidates[c].level
-                && best.as_ref().is_none_or(|(_, b)| log_p < *b)
-            {
-                best = Some((vec![c], log_p));
-            }
-        }
-        for (w, t) in wholes.iter().zip(wholes_given(total, nuisance, candidates, wholes, &taken)) {
+        let mut best: Option<(usize, f64)> = None;
+        for (k, t) in sets_given(total, nuisance, candidates, &members, &taken).into_iter().enumerate() {
             if let Some((p, log_p)) = t
-                && p < w.level
-                && best.as_ref().is_none_or(|(_, b)| log_p < *b)
+                && p < sets[k].1
+                && best.is_none_or(|(_, b)| log_p < b)
             {
-                best = Some((w.members.iter().copied().filter(|c| !taken.contains(c)).collect(), log_p));
+                best = Some((k, log_p));
             }
         }
         match best {
-            Some((cs, _)) => taken.extend(cs),
+            Some((k, _)) => {
+                let new: Vec<usize> = members[k].iter().copied().filter(|c| !taken.contains(c)).collect();
+                taken.extend(new);
+            }
             None => break,
         }
     }
@@ -183,7 +157,8 @@ pub fn select(total: &Accumulated, nuisance: &[usize], candidates: &[Candidate],
             None => break,
         }
     }
-    for (c, t) in each_given(total, nuisance, candidates, &taken).into_iter().enumerate() {
+    let singles: Vec<Vec<usize>> = (0..candidates.len()).map(|c| vec![c]).collect();
+    for (c, t) in sets_given(total, nuisance, candidates, &singles, &taken).into_iter().enumerate() {
         if let Some((p, _)) = t {
             p_given_kept[c] = p;
         }
