@@ -43,6 +43,14 @@ pub fn corrected_dynamic(array: &RecordingArray, fit: &Fit, d: &DynamicData, clo
     }
 }
 
+/// Each dynamic output's rate of change that its age multiplies in the correction
+/// ([`corrected_dynamic`]; samples x accelerometers, m/s^3), `d` the rotation phase as read: what
+/// a clock parameter's column is made of (`ClockProblem::output_rates_m_s3`).
+pub fn output_rates_m_s3(array: &RecordingArray, fit: &Fit, d: &DynamicData, clocks: &ClockEstimate) -> DMatrix<f64> {
+    let (package_of, sens, weights) = timing_inputs(array, fit);
+    ClockProblem::new(&sens, d, &fit.motion, &weights, &package_of).output_rates_m_s3(&clocks.timing)
+}
+
 /// What a clock problem at `fit` reads: each accelerometer's package, the sensors, and the
 /// outputs' inverse variances in the rotation phase.
 fn timing_inputs(array: &RecordingArray, fit: &Fit) -> (Vec<usize>, Vec<Sensor>, Vec<f64>) {

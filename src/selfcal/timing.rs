@@ -158,6 +158,11 @@ impl TimingMotion {
     fn from_vector(u: &Vector6<f64>) -> Self {
         Self { jerk_m_s3: Vector3::new(u[0], u[1], u[2]), angular_jerk_rad_s3: Vector3::new(u[3], u[4], u[5]) }
     }
+
+    fn vector(&self) -> Vector6<f64> {
+        let (j, a) = (&self.jerk_m_s3, &self.angular_jerk_rad_s3);
+        Vector6::new(j[0], j[1], j[2], a[0], a[1], a[2])
+    }
 }
 
 /// The timing term of an output's model at one sample, in output units:
@@ -507,6 +512,17 @@ impl ClockProblem {
         self.cost(clocks, 0..self.samples()).1.iter().map(TimingMotion::from_vector).collect()
     }
 
+    /// Each output's rate of change that its age multiplies in [`ClockProblem::corrected`] (samples
+    /// x accelerometers, m/s^3): `k a . (J + dalpha/dt x r + D r)` with the timing motion `timing`.
+    /// Times a clock parameter's derivative of the package's relative age, it is the corrected
+    /// output's derivative in that parameter.
+    pub fn output_rates_m_s3(&self, timing: &[TimingMotion]) -> DMatrix<f64> {
+        DMatrix::from_fn(self.samples(), self.n, |i, j| {
+            let u = timing.get(i).map_or(Vector6::zeros(), TimingMotion::vector);
+            self.known_gain[i * self.n + j] + self.gain[j].dot(&u)
+        })
+    }
+
     /// The outputs corrected to the mean instant: `s + tau k a . (J + dalpha/dt x r + D r)`.
     pub fn corrected(
         &self,
@@ -518,14 +534,7 @@ impl ClockProblem {
         let mut tau = vec![0.0; clocks.len()];
         for (i, t) in timing.iter().enumerate().take(self.samples()) {
             relative_ages(clocks, self.t_s[i], &mut tau);
-            let u = Vector6::new(
-                t.jerk_m_s3[0],
-                t.jerk_m_s3[1],
-                t.jerk_m_s3[2],
-                t.angular_jerk_rad_s3[0],
-                t.angular_jerk_rad_s3[1],
-                t.angular_jerk_rad_s3[2],
-            );
+            let u = t.vector();
             for j in 0..self.n {
                 out[(i, j)] += tau[self.package_of[j]] * (self.known_gain[i * self.n + j] + self.gain[j].dot(&u));
             }

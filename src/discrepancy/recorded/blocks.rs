@@ -1,13 +1,15 @@
 //! The rows of a fitted recording as blocks for `projected`: one block per static interval (its
 //! mean outputs; local nuisance the pose's two tangent angles) and one per dynamic sample (its
 //! unclipped outputs; local nuisance the motion, 9 unknowns, or 6 with the reference rate), with
-//! the global columns: first the nuisance (`Nuisance`), then each effect's regressor.
+//! the global columns: first the nuisance (`Nuisance`), then the sample clocks' relative
+//! parameters where they were fitted (`ClockNuisance`), then each effect's regressor.
 
 use nalgebra::{DMatrix, DVector, Vector3};
 
 use super::effect::{EffectLayout, RecordedEffect, Row};
 use super::projected::{Accumulated, Block, Spread, accumulate};
 use crate::array::Array;
+use crate::selfcal::clock::SampleClock;
 use crate::selfcal::data::{DynamicData, StaticData};
 use crate::selfcal::model::{PER_ACCEL, SampleMotion, Sensor, SensorSet, sensors};
 use crate::selfcal::timing::{TIMING_UNKNOWNS_PER_SAMPLE, timing_directions};
@@ -35,9 +37,61 @@ pub struct RecordingState<'a> {
     pub ages_s: Option<&'a DMatrix<f64>>,
     /// Per dynamic output (samples x accelerometers): a factor on its weight.
     pub row_factor: Option<&'a DMatrix<f64>>,
+    /// How many columns the layout gives the sample clocks' relative parameters (the fitting
+    /// recording's [`ClockNuisance::columns`], on held-out recordings too, so that they share its
+    /// layout; 0 without clocks).
+    pub clock_columns: usize,
+    /// Their values on this recording: `None` leaves them zero (a held-out recording, whose
+    /// outputs are not corrected by the fitting recording's clocks).
+    pub clocks: Option<ClockNuisance<'a>>,
     pub gravity_m_s2: f64,
     /// The recording's middle time, s.
     pub t_mid_s: f64,
+}
+
+/// The sample clocks' relative parameters as global nuisance, on a recording whose outputs were
+/// corrected by them (`selfcal::clocked::corrected_dynamic`): per clocked package its rate
+/// offset, drift and phase (`SampleClock::age_partials`), in the packages' order. The correction
+/// adds `tau_p(t) c_ij` to output `j` of package `p` at sample `i` (`c_ij` its rate of change,
+/// [`ClockNuisance::rate_m_s3`]; `tau_p` the package's age less the packages' mean), so a clock
+/// parameter `x_q` of package `q` has the column `c_ij (delta(p, q) - 1/P) d age_q / d x_q` (`P`
+/// packages, clocked or not), as the clocks' own fit has (`selfcal::timing`). The common part of
+/// every clock leaves the relative ages alone: its three directions are null (the clock model's
+/// gauge), which the projections' pseudo-inverses leave out.
+///
+/// Why they are nuisance: between its wraps a package's phase shifts its outputs' age by a
+/// constant, which is what a package's sampling delay does; held at the fitted clocks, the
+/// library read the delay's sigma as if the phase were known, and read as a delay whatever the
+/// calibration's (Huber-weighted) clock fit left along the phase under the library's weights.
+#[derive(Debug, Clone, Copy)]
+pub struct ClockNuisance<'a> {
+    pub clocks: &'a [Option<SampleClock>],
+    /// Each accelerometer's package.
+    pub package_of: &'a [usize],
+    /// Each dynamic output's rate of change (samples x accelerometers, m/s^3,
+    /// `selfcal::clocked::output_rates_m_s3`).
+    pub rate_m_s3: &'a DMatrix<f64>,
+}
+
+impl ClockNuisance<'_> {
+    /// Three a clocked package.
+    pub fn columns(&self) -> usize {
+        3 * self.clocks.iter().filter(|c| c.is_some()).count()
+    }
+
+    /// Output `j`'s row at sample `i` (time `t_s`) of the clocks' columns, into `out` (one
+    /// element a column).
+    pub fn regress(&self, i: usize, j: usize, t_s: f64, out: &mut [f64]) {
+        let packages = self.clocks.len() as f64;
+        let rate = self.rate_m_s3[(i, j)];
+        for (c, (q, clock)) in self.clocks.iter().enumerate().filter_map(|(q, c)| c.map(|c| (q, c))).enumerate() {
+            let share = if q == self.package_of[j] { 1.0 } else { 0.0 } - 1.0 / packages;
+            let partials = clock.age_partials(t_s);
+            for a in 0..3 {
+                out[3 * c + a] = rate * share * partials[a];
+            }
+        }
+    }
 }
 
 /// The global nuisance re-adjusted with the effects.
@@ -145,7 +199,9 @@ pub fn accumulate_recording(
     let layout = EffectLayout::new(array);
     let sens = sensors(array, state.params);
     let nominal: Vec<Vector3<f64>> = array.accelerometers().iter().map(|a| a.axis).collect();
-    let g0 = nuisance.columns(n);
+    debug_assert!(state.clocks.is_none_or(|c| c.columns() == state.clock_columns));
+    let clock_offset = nuisance.columns(n);
+    let g0 = clock_offset + state.clock_columns;
     let mut offsets = Vec::with_capacity(effects.len());
     let mut cols = g0;
     for e in effects {
@@ -247,6 +303,9 @@ pub fn accumulate_recording(
                     }
                     buf.iter_mut().for_each(|v| *v = 0.0);
                     nuisance.regress(j, n, s, &q, Some(s.d_location(m)), &mut buf);
+                    if let Some(c) = &state.clocks {
+                        c.regress(i, j, d.t_s[i], &mut buf[clock_offset..g0]);
+                    }
                     let row = Row {
                         j,
                         k: s.k,

@@ -36,7 +36,7 @@
 
 use nalgebra::DMatrix;
 
-use super::blocks::{Nuisance, RecordingState, accumulate_recording, refitted_columns};
+use super::blocks::{ClockNuisance, Nuisance, RecordingState, accumulate_recording, refitted_columns};
 use super::change::change_test;
 use super::diagnosis::{Gap, HeldOutScore, RecordedDiagnosis, RecordedError, RecordedFinding};
 use super::effect::{EffectLayout, RecordedEffect};
@@ -49,7 +49,7 @@ use crate::selfcal::calibrate::{
     with_removed_drift,
 };
 use crate::selfcal::clock::SampleClock;
-use crate::selfcal::clocked::corrected_dynamic;
+use crate::selfcal::clocked::{corrected_dynamic, output_rates_m_s3};
 use crate::selfcal::misfit;
 use crate::selfcal::model::{PER_ACCEL, sensors};
 use crate::selfcal::predict::{HeldOut, HeldOutState, Refit, predict_as_fitted, predict_with_state};
@@ -291,9 +291,13 @@ fn diagnose_as_recorded(
     // (12% of itself), and 3.7e-5 +- 1.7e-5 now (`results/mimu4444/EXPECTATIONS.md`, (bm)-(bn)).
     let mut ages_s = None;
     let mut row_factor = None;
+    // The clocks' own relative parameters are global nuisance too (`blocks::ClockNuisance`).
+    let package_of = array.package_indices();
+    let mut output_rates = None;
     if let (Some(c), Some(d)) = (&calibration.clocks, prepared.data.as_ref()) {
+        output_rates = Some(output_rates_m_s3(array, fit, d, c));
         let corrected = corrected_dynamic(array, fit, d, c);
-        ages_s = Some(accelerometer_ages(&corrected, &c.clocks, &array.package_indices()));
+        ages_s = Some(accelerometer_ages(&corrected, &c.clocks, &package_of));
         let r = misfit::residuals(&array.array, &fit.params, &corrected, &fit.motion);
         row_factor = Some(other_outputs_factors(&r, &corrected.used, &dynamic_w));
         prepared.data = Some(corrected);
@@ -312,12 +316,20 @@ fn diagnose_as_recorded(
         dynamic_w: &dynamic_w,
         ages_s: ages_s.as_ref(),
         row_factor: row_factor.as_ref(),
+        clock_columns: 0,
+        clocks: calibration.clocks.as_ref().zip(output_rates.as_ref()).map(|(c, r)| ClockNuisance {
+            clocks: &c.clocks,
+            package_of: &package_of,
+            rate_m_s3: r,
+        }),
         gravity_m_s2: g,
         t_mid_s: middle(&fitting.t_s),
     };
+    let state_a = RecordingState { clock_columns: state_a.clocks.map_or(0, |c| c.columns()), ..state_a };
     let normal_a = accumulate_recording(&state_a, Nuisance::Baseline, None, &effects);
     let group_rows = (fit.gauge.translation_groups > 1).then(|| fit.gauge.constraints(&array.array, true, 0));
-    let sensing = sensing_points(&normal_a.total(), &layout, &fit.params, group_rows.as_ref());
+    let sensing =
+        sensing_points(&normal_a.total(), normal_a.nuisance_columns, &layout, &fit.params, group_rows.as_ref());
     let mut held = Vec::with_capacity(held_out.len());
     for (other, score) in held_out.iter().zip(&scores) {
         let (_, st) = predict_with_state(
@@ -330,7 +342,8 @@ fn diagnose_as_recorded(
             Some(&dynamic_w),
             settings.use_gyro,
         )?;
-        let state = held_state(&array.array, &st, g, &dynamic_w);
+        let state =
+            RecordingState { clock_columns: state_a.clock_columns, ..held_state(&array.array, &st, g, &dynamic_w) };
         // The baseline's layout, so that the fitting recording's change of every parameter with an
         // effect is carried over; only the turn-on parameters named are refitted here.
         let refit_b = refitted_columns(nuisance_b, array.array.len());
@@ -388,6 +401,8 @@ fn held_state<'a>(
         dynamic_w,
         ages_s: None,
         row_factor: None,
+        clock_columns: 0,
+        clocks: None,
         gravity_m_s2: g,
         t_mid_s: state.t_mid_s,
     }

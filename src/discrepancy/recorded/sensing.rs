@@ -67,22 +67,41 @@ impl AxisOffset {
 }
 
 /// Tests every package with more than one axis. `total` is the fitting recording's accumulation
-/// with the baseline as its first `PER_ACCEL n` columns.
+/// with the baseline as its first `PER_ACCEL n` columns, then up to `nuisance_columns` the rest
+/// of the nuisance (the sample clocks' relative parameters, `blocks::ClockNuisance`), which is
+/// eliminated first.
 ///
 /// `groups`: the gauge's rows (over the accelerometer parameters) when the array has several
 /// axis groups, `None` otherwise.
 pub fn sensing_points(
     total: &Accumulated,
+    nuisance_columns: usize,
     layout: &EffectLayout,
     params: &SensorSet,
     groups: Option<&DMatrix<f64>>,
 ) -> Vec<SensingPoint> {
     let n = params.len();
     let g: Vec<usize> = (0..PER_ACCEL * n).collect();
-    let ngg = DMatrix::from_fn(g.len(), g.len(), |i, j| total.normal[(g[i], g[j])]);
+    let all: Vec<usize> = (0..nuisance_columns.max(g.len())).collect();
     // The spread of the scores: the dynamic samples' sandwich and the static intervals' model
     // information (`projected`; at the baseline's own solution, with its variance factor).
-    let mgg = DMatrix::from_fn(g.len(), g.len(), |i, j| total.meat[(g[i], g[j])] + total.model_normal[(g[i], g[j])]);
+    let normal = DMatrix::from_fn(all.len(), all.len(), |i, j| total.normal[(i, j)]);
+    let meat = DMatrix::from_fn(all.len(), all.len(), |i, j| total.meat[(i, j)] + total.model_normal[(i, j)]);
+    // The other nuisance eliminated: the baseline's normal matrix is its Schur complement, and its
+    // score `s_g - K s_c` (`K = N_gc N_cc^+`) spreads as `L M L^T`, `L = [I, -K]`.
+    let p = g.len();
+    let (ngg, mgg) = if all.len() > p {
+        let c = all.len() - p;
+        let ncc = normal.view((p, p), (c, c)).into_owned();
+        let k = normal.view((0, p), (p, c)) * symmetric_pinv(&ncc, 1e-11).0;
+        let ngg = normal.view((0, 0), (p, p)) - &k * normal.view((p, 0), (c, p));
+        let mut l = DMatrix::zeros(p, all.len());
+        l.view_mut((0, 0), (p, p)).fill_with_identity();
+        l.view_mut((0, p), (p, c)).copy_from(&(-k));
+        (ngg, &l * meat * l.transpose())
+    } else {
+        (normal, meat)
+    };
     let pg = groups.and_then(|c| gauge_inverse(&ngg, c)).unwrap_or_else(|| symmetric_pinv(&ngg, 1e-11).0);
     let cov = &pg * mgg * &pg;
     let mut out = Vec::new();
