@@ -204,10 +204,19 @@ pub fn try_effects(
             let smallest =
                 (0..candidates.len()).filter(of_effect).map(|c| selection.p_given_kept[c]).fold(1.0f64, f64::min);
             let dropped = selection.dropped.iter().filter(|c| of_effect(c)).count();
-            let then = if dropped > 0 {
-                format!("; {dropped} taken, then dropped by the backward step")
-            } else {
-                String::new()
+            // Taken whole: the effect as a whole passed its level, yet no owner holds in the
+            // joint fit (present, not attributed to an owner).
+            let whole = selection
+                .wholes_taken
+                .iter()
+                .find(|(w, _)| wholes[*w].members.first().is_some_and(|&c| candidates[c].effect == e_index));
+            let then = match (dropped, whole) {
+                (0, _) => String::new(),
+                (_, Some((w, p))) => format!(
+                    "; taken whole (p = {p:.2e}, level {:.1e}), then {dropped} owners dropped by the backward step: present as a whole, held by no owner",
+                    wholes[*w].level
+                ),
+                _ => format!("; {dropped} taken, then dropped by the backward step"),
             };
             not_named[e_index].push((
                 name,
