@@ -181,6 +181,17 @@ mod tests {
     use nalgebra::{DMatrix, DVector};
     use rand_distr::{Distribution, StandardNormal};
 
+    /// Adds one row (`columns`, `residual`, weight 1, no local nuisance) to `total`.
+    fn add_row(total: &mut Accumulated, columns: &[f64], residual: f64) {
+        let block = Block {
+            local: DMatrix::zeros(1, 0),
+            columns: DMatrix::from_row_slice(1, columns.len(), columns),
+            residual: DVector::from_element(1, residual),
+            weight: DVector::from_element(1, 1.0),
+        };
+        total.add(&block, Spread::Sandwich);
+    }
+
     /// A regression whose truth is known by construction: `y = 0.5 x1 + 0.5 x2 + noise`, with a
     /// look-alike `A = (x1 + x2) / sqrt(2) + 0.5 e` that correlates with the truth more than either
     /// true column does, and a column of pure noise. Forward takes the look-alike first, then both
@@ -194,13 +205,7 @@ mod tests {
         for _ in 0..4000 {
             let (x1, x2, e, noise, column_noise) = (draw(), draw(), draw(), draw(), draw());
             let look_alike = (x1 + x2) / 2f64.sqrt() + 0.5 * e;
-            let block = Block {
-                local: DMatrix::zeros(1, 0),
-                columns: DMatrix::from_row_slice(1, 5, &[1.0, look_alike, x1, x2, column_noise]),
-                residual: DVector::from_element(1, 0.5 * x1 + 0.5 * x2 + noise),
-                weight: DVector::from_element(1, 1.0),
-            };
-            total.add(&block, Spread::Sandwich);
+            add_row(&mut total, &[1.0, look_alike, x1, x2, column_noise], 0.5 * x1 + 0.5 * x2 + noise);
         }
         let candidate = |effect: usize, owner: usize, column: usize| Candidate {
             effect,
@@ -228,13 +233,7 @@ mod tests {
         for _ in 0..500 {
             let x: f64 = StandardNormal.sample(&mut rng);
             let noise: f64 = StandardNormal.sample(&mut rng);
-            let block = Block {
-                local: DMatrix::zeros(1, 0),
-                columns: DMatrix::from_row_slice(1, 3, &[x, 2.0 * x, 1.0]),
-                residual: DVector::from_element(1, 3.0 * x + noise),
-                weight: DVector::from_element(1, 1.0),
-            };
-            total.add(&block, Spread::Sandwich);
+            add_row(&mut total, &[x, 2.0 * x, 1.0], 3.0 * x + noise);
         }
         // Column 1 is twice column 0, the nuisance: absorbed whatever the residual says.
         let absorbed = Candidate { effect: 0, owner: 0, columns: vec![1], level: 0.5 };
@@ -259,13 +258,7 @@ mod tests {
             let noise: f64 = StandardNormal.sample(&mut rng);
             let mut row = vec![1.0];
             row.extend(&x);
-            let block = Block {
-                local: DMatrix::zeros(1, 0),
-                columns: DMatrix::from_row_slice(1, 9, &row),
-                residual: DVector::from_element(1, 0.5 * x.iter().sum::<f64>() + noise),
-                weight: DVector::from_element(1, 1.0),
-            };
-            total.add(&block, Spread::Sandwich);
+            add_row(&mut total, &row, 0.5 * x.iter().sum::<f64>() + noise);
         }
         let candidates: Vec<Candidate> =
             (0..8).map(|o| Candidate { effect: 0, owner: o, columns: vec![o + 1], level: 1e-4 }).collect();
@@ -294,13 +287,7 @@ mod tests {
             let noise: f64 = StandardNormal.sample(&mut rng);
             let mut row = vec![1.0];
             row.extend(&x);
-            let block = Block {
-                local: DMatrix::zeros(1, 0),
-                columns: DMatrix::from_row_slice(1, 9, &row),
-                residual: DVector::from_element(1, b * x.iter().sum::<f64>() + noise),
-                weight: DVector::from_element(1, 1.0),
-            };
-            total.add(&block, Spread::Sandwich);
+            add_row(&mut total, &row, b * x.iter().sum::<f64>() + noise);
         }
         let candidates: Vec<Candidate> =
             (0..8).map(|o| Candidate { effect: 0, owner: o, columns: vec![o + 1], level: 1.25e-4 }).collect();
