@@ -284,7 +284,13 @@ pub fn diagnose_recordings(
             println!("    + {name:<35} {}", show(g));
         }
     }
-    println!("\neffects named (each lowers the gap on every held-out recording):");
+    if d.held_out.is_empty() {
+        println!(
+            "\neffects named on the fitting recording alone (no held-out recording confirms them: give --held-out):"
+        );
+    } else {
+        println!("\neffects named (each lowers the gap on every held-out recording):");
+    }
     if d.findings.is_empty() {
         println!("  none");
     }

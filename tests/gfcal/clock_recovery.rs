@@ -309,6 +309,9 @@ fn a_quadratic_scale_factor_hidden_in_a_clocked_recording_is_recovered_after_the
     // (`discrepancy::recorded::selection`; `results/mimu4444/EXPECTATIONS.md` (by), written before the
     // run). Until then it was tested in the joint fit of every owner (2.2 sigma) and named nowhere.
     assert_eq!(named, [("scale_factor_quadratic".to_string(), Some(j))], "{:?}", d.not_named);
+    // Named on this recording alone (no held-out recording was given), and said so.
+    let finding = d.findings.iter().find(|f| f.name == "scale_factor_quadratic").expect("named");
+    assert!(finding.what.contains("alone (no held-out recording to confirm it)"), "{}", finding.what);
     let rank = d.ranks.iter().find(|r| r.name == "scale_factor_quadratic").expect("tried");
     let (v, s) = (rank.value[j], rank.sigma[j]);
     assert!(s.is_finite() && s > 0.0 && (v - c).abs() < 3.0 * s, "{v} +- {s} against {c}");
