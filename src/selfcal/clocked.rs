@@ -33,22 +33,28 @@ use crate::array::wiring::RecordingArray;
 /// clocks and timing motion (what the fit with clocks was fitted to), and by the anti-alias
 /// filters' term where the array file declares filters (`selfcal::filter`).
 pub fn corrected_dynamic(array: &RecordingArray, fit: &Fit, d: &DynamicData, clocks: &ClockEstimate) -> DynamicData {
+    corrected_dynamic_and_rates(array, fit, d, clocks).0
+}
+
+/// [`corrected_dynamic`], and each dynamic output's rate of change that its age multiplies in the
+/// correction (samples x accelerometers, m/s^3, `ClockProblem::output_rates_m_s3`): what a clock
+/// parameter's column is made of.
+pub fn corrected_dynamic_and_rates(
+    array: &RecordingArray,
+    fit: &Fit,
+    d: &DynamicData,
+    clocks: &ClockEstimate,
+) -> (DynamicData, DMatrix<f64>) {
     let (package_of, sens, weights) = timing_inputs(array, fit);
     let problem = ClockProblem::new(&sens, d, &fit.motion, &weights, &package_of);
-    let outputs = problem.corrected(&d.outputs, &clocks.clocks, &clocks.timing);
-    DynamicData {
+    let rates = problem.output_rates_m_s3(&clocks.timing);
+    let outputs = problem.corrected_at_rates(&d.outputs, &clocks.clocks, &rates, clocks.timing.len());
+    let corrected = DynamicData {
         outputs: with_filters(array, fit, outputs),
         extra_unknowns_per_sample: TIMING_UNKNOWNS_PER_SAMPLE,
         ..d.clone()
-    }
-}
-
-/// Each dynamic output's rate of change that its age multiplies in the correction
-/// ([`corrected_dynamic`]; samples x accelerometers, m/s^3), `d` the rotation phase as read: what
-/// a clock parameter's column is made of (`ClockProblem::output_rates_m_s3`).
-pub fn output_rates_m_s3(array: &RecordingArray, fit: &Fit, d: &DynamicData, clocks: &ClockEstimate) -> DMatrix<f64> {
-    let (package_of, sens, weights) = timing_inputs(array, fit);
-    ClockProblem::new(&sens, d, &fit.motion, &weights, &package_of).output_rates_m_s3(&clocks.timing)
+    };
+    (corrected, rates)
 }
 
 /// What a clock problem at `fit` reads: each accelerometer's package, the sensors, and the

@@ -530,13 +530,25 @@ impl ClockProblem {
         clocks: &[Option<SampleClock>],
         timing: &[TimingMotion],
     ) -> DMatrix<f64> {
+        self.corrected_at_rates(outputs, clocks, &self.output_rates_m_s3(timing), timing.len())
+    }
+
+    /// [`ClockProblem::corrected`] with the outputs' rates of change formed
+    /// ([`ClockProblem::output_rates_m_s3`]); only the first `samples` samples (those with a timing
+    /// motion) are corrected.
+    pub fn corrected_at_rates(
+        &self,
+        outputs: &DMatrix<f64>,
+        clocks: &[Option<SampleClock>],
+        rates_m_s3: &DMatrix<f64>,
+        samples: usize,
+    ) -> DMatrix<f64> {
         let mut out = outputs.clone();
         let mut tau = vec![0.0; clocks.len()];
-        for (i, t) in timing.iter().enumerate().take(self.samples()) {
+        for i in 0..samples.min(self.samples()) {
             relative_ages(clocks, self.t_s[i], &mut tau);
-            let u = t.vector();
             for j in 0..self.n {
-                out[(i, j)] += tau[self.package_of[j]] * (self.known_gain[i * self.n + j] + self.gain[j].dot(&u));
+                out[(i, j)] += tau[self.package_of[j]] * rates_m_s3[(i, j)];
             }
         }
         out

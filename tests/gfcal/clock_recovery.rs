@@ -832,7 +832,7 @@ fn the_covariance_eliminates_each_samples_timing_motion() {
 #[test]
 fn the_clocks_nuisance_columns_are_the_corrections_central_differences() {
     use gfcal::discrepancy::recorded::blocks::ClockNuisance;
-    use gfcal::selfcal::clocked::{corrected_dynamic, output_rates_m_s3};
+    use gfcal::selfcal::clocked::{corrected_dynamic, corrected_dynamic_and_rates};
     use gfcal::selfcal::timing::accelerometer_ages;
     let (cell, sim) = short_clocked_recording(7);
     let array = &cell.array;
@@ -841,7 +841,7 @@ fn the_clocks_nuisance_columns_are_the_corrections_central_differences() {
     let d = gfcal::selfcal::calibrate::prepare_dynamic(&sim.recording, &cal.segmentation, false, cal.gyro_bias_rad_s)
         .data
         .expect("a rotation phase");
-    let rates = output_rates_m_s3(array, &cal.fit, &d, c);
+    let rates = corrected_dynamic_and_rates(array, &cal.fit, &d, c).1;
     let package_of = array.package_indices();
     let nuisance = ClockNuisance { clocks: &c.clocks, package_of: &package_of, rate_m_s3: &rates };
     let clocked: Vec<usize> = (0..c.clocks.len()).filter(|&p| c.clocks[p].is_some()).collect();

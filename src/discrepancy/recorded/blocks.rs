@@ -69,7 +69,7 @@ pub struct ClockNuisance<'a> {
     /// Each accelerometer's package.
     pub package_of: &'a [usize],
     /// Each dynamic output's rate of change (samples x accelerometers, m/s^3,
-    /// `selfcal::clocked::output_rates_m_s3`).
+    /// `selfcal::clocked::corrected_dynamic_and_rates`).
     pub rate_m_s3: &'a DMatrix<f64>,
 }
 

@@ -49,7 +49,7 @@ use crate::selfcal::calibrate::{
     with_removed_drift,
 };
 use crate::selfcal::clock::SampleClock;
-use crate::selfcal::clocked::{corrected_dynamic, output_rates_m_s3};
+use crate::selfcal::clocked::corrected_dynamic_and_rates;
 use crate::selfcal::misfit;
 use crate::selfcal::model::{PER_ACCEL, sensors};
 use crate::selfcal::predict::{HeldOut, HeldOutState, Refit, predict_as_fitted, predict_with_state};
@@ -295,13 +295,18 @@ fn diagnose_as_recorded(
     let package_of = array.package_indices();
     let mut output_rates = None;
     if let (Some(c), Some(d)) = (&calibration.clocks, prepared.data.as_ref()) {
-        output_rates = Some(output_rates_m_s3(array, fit, d, c));
-        let corrected = corrected_dynamic(array, fit, d, c);
+        let (corrected, rates) = corrected_dynamic_and_rates(array, fit, d, c);
+        output_rates = Some(rates);
         ages_s = Some(accelerometer_ages(&corrected, &c.clocks, &package_of));
         let r = misfit::residuals(&array.array, &fit.params, &corrected, &fit.motion);
         row_factor = Some(other_outputs_factors(&r, &corrected.used, &dynamic_w));
         prepared.data = Some(corrected);
     }
+    let clocks = calibration.clocks.as_ref().zip(output_rates.as_ref()).map(|(c, r)| ClockNuisance {
+        clocks: &c.clocks,
+        package_of: &package_of,
+        rate_m_s3: r,
+    });
     let static_t_s: Vec<f64> =
         calibration.segmentation.static_intervals.iter().map(|iv| fitting.t_s[(iv.start + iv.end) / 2]).collect();
     let state_a = RecordingState {
@@ -316,16 +321,11 @@ fn diagnose_as_recorded(
         dynamic_w: &dynamic_w,
         ages_s: ages_s.as_ref(),
         row_factor: row_factor.as_ref(),
-        clock_columns: 0,
-        clocks: calibration.clocks.as_ref().zip(output_rates.as_ref()).map(|(c, r)| ClockNuisance {
-            clocks: &c.clocks,
-            package_of: &package_of,
-            rate_m_s3: r,
-        }),
+        clock_columns: clocks.map_or(0, |c| c.columns()),
+        clocks,
         gravity_m_s2: g,
         t_mid_s: middle(&fitting.t_s),
     };
-    let state_a = RecordingState { clock_columns: state_a.clocks.map_or(0, |c| c.columns()), ..state_a };
     let normal_a = accumulate_recording(&state_a, Nuisance::Baseline, None, &effects);
     let group_rows = (fit.gauge.translation_groups > 1).then(|| fit.gauge.constraints(&array.array, true, 0));
     let sensing =

@@ -115,17 +115,16 @@ fn sets_given(
 /// the module docs).
 pub fn select(total: &Accumulated, nuisance: &[usize], candidates: &[Candidate], wholes: &[Whole]) -> Selection {
     // Each candidate alone, then each effect whole, with their levels.
-    let mut sets: Vec<(Vec<usize>, f64)> =
-        candidates.iter().enumerate().map(|(c, cand)| (vec![c], cand.level)).collect();
-    sets.extend(wholes.iter().map(|w| (w.members.clone(), w.level)));
-    let members: Vec<Vec<usize>> = sets.iter().map(|(m, _)| m.clone()).collect();
+    let mut members: Vec<Vec<usize>> = (0..candidates.len()).map(|c| vec![c]).collect();
+    members.extend(wholes.iter().map(|w| w.members.clone()));
+    let levels: Vec<f64> = candidates.iter().map(|c| c.level).chain(wholes.iter().map(|w| w.level)).collect();
     let mut taken: Vec<usize> = Vec::new();
     let mut wholes_taken = Vec::new();
     loop {
         let mut best: Option<(usize, f64, f64)> = None;
         for (k, t) in sets_given(total, nuisance, candidates, &members, &taken).into_iter().enumerate() {
             if let Some((p, log_p)) = t
-                && p < sets[k].1
+                && p < levels[k]
                 && best.is_none_or(|(_, _, b)| log_p < b)
             {
                 best = Some((k, p, log_p));
@@ -165,8 +164,8 @@ pub fn select(total: &Accumulated, nuisance: &[usize], candidates: &[Candidate],
             None => break,
         }
     }
-    let singles: Vec<Vec<usize>> = (0..candidates.len()).map(|c| vec![c]).collect();
-    for (c, t) in sets_given(total, nuisance, candidates, &singles, &taken).into_iter().enumerate() {
+    let singles = &members[..candidates.len()];
+    for (c, t) in sets_given(total, nuisance, candidates, singles, &taken).into_iter().enumerate() {
         if let Some((p, _)) = t {
             p_given_kept[c] = p;
         }

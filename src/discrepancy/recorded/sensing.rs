@@ -82,20 +82,20 @@ pub fn sensing_points(
 ) -> Vec<SensingPoint> {
     let n = params.len();
     let g: Vec<usize> = (0..PER_ACCEL * n).collect();
-    let all: Vec<usize> = (0..nuisance_columns.max(g.len())).collect();
+    let columns = nuisance_columns.max(g.len());
     // The spread of the scores: the dynamic samples' sandwich and the static intervals' model
     // information (`projected`; at the baseline's own solution, with its variance factor).
-    let normal = DMatrix::from_fn(all.len(), all.len(), |i, j| total.normal[(i, j)]);
-    let meat = DMatrix::from_fn(all.len(), all.len(), |i, j| total.meat[(i, j)] + total.model_normal[(i, j)]);
+    let normal = DMatrix::from_fn(columns, columns, |i, j| total.normal[(i, j)]);
+    let meat = DMatrix::from_fn(columns, columns, |i, j| total.meat[(i, j)] + total.model_normal[(i, j)]);
     // The other nuisance eliminated: the baseline's normal matrix is its Schur complement, and its
     // score `s_g - K s_c` (`K = N_gc N_cc^+`) spreads as `L M L^T`, `L = [I, -K]`.
     let p = g.len();
-    let (ngg, mgg) = if all.len() > p {
-        let c = all.len() - p;
+    let (ngg, mgg) = if columns > p {
+        let c = columns - p;
         let ncc = normal.view((p, p), (c, c)).into_owned();
         let k = normal.view((0, p), (p, c)) * symmetric_pinv(&ncc, 1e-11).0;
         let ngg = normal.view((0, 0), (p, p)) - &k * normal.view((p, 0), (c, p));
-        let mut l = DMatrix::zeros(p, all.len());
+        let mut l = DMatrix::zeros(p, columns);
         l.view_mut((0, 0), (p, p)).fill_with_identity();
         l.view_mut((0, p), (p, c)).copy_from(&(-k));
         (ngg, &l * meat * l.transpose())

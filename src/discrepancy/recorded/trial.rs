@@ -299,12 +299,10 @@ pub fn try_effects(
                 name: name.clone(),
                 what: if effect.per_recording() {
                     "fitted on the fitting recording (refitted on each held-out recording)".into()
+                } else if held_out.is_empty() {
+                    "fitted on the fitting recording alone (no held-out recording to confirm it)".into()
                 } else {
-                    if held_out.is_empty() {
-                        "fitted on the fitting recording alone (no held-out recording to confirm it)".into()
-                    } else {
-                        "fitted on the fitting recording, carried over to the held-out recordings".into()
-                    }
+                    "fitted on the fitting recording, carried over to the held-out recordings".into()
                 },
                 accelerometer,
                 package,
