@@ -378,10 +378,11 @@ pub fn fit_from(
             let pooled = settings
                 .held_dynamic_variance_m2_s4
                 .or_else(|| pool.then(|| pooled_dynamic_variance(d, &rms, &counts, local)).flatten());
+            let leverage = if pooled.is_none() { misfit::leverages(d, local) } else { Vec::new() };
             for j in 0..n {
                 let var = match pooled {
                     Some(v) => v,
-                    None => rms[j].powi(2) * misfit::leverage(d, j, local),
+                    None => rms[j].powi(2) * leverage[j],
                 };
                 let var = var.max(stat.sigma[j].powi(2));
                 let w = 1.0 / var;

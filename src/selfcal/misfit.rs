@@ -16,6 +16,7 @@
 //! variance the model leaves.
 
 use nalgebra::DMatrix;
+use rayon::prelude::*;
 
 use super::data::DynamicData;
 use super::model::{SampleMotion, SensorSet, sensors};
@@ -38,17 +39,23 @@ pub fn residual_rms(
 ) -> (Vec<f64>, Vec<usize>) {
     let sens = sensors(array, params);
     let n = array.len();
-    let mut s = vec![0.0; n];
-    let mut c = vec![0usize; n];
-    for (i, m) in motion.iter().enumerate().take(d.samples()) {
-        for (j, sn) in sens.iter().enumerate() {
-            if d.used[i * n + j] {
-                s[j] += (d.outputs[(i, j)] - sn.output(&m.specific_force_m_s2(&sn.position_m))).powi(2);
-                c[j] += 1;
+    // The accelerometers side by side, each summed over the samples in order.
+    let sums: Vec<(f64, usize)> = sens
+        .par_iter()
+        .enumerate()
+        .map(|(j, sn)| {
+            let mut s = 0.0;
+            let mut c = 0;
+            for (i, m) in motion.iter().enumerate().take(d.samples()) {
+                if d.used[i * n + j] {
+                    s += (d.outputs[(i, j)] - sn.output(&m.specific_force_m_s2(&sn.position_m))).powi(2);
+                    c += 1;
+                }
             }
-        }
-    }
-    ((0..n).map(|j| if c[j] > 0 { (s[j] / c[j] as f64).sqrt() } else { f64::NAN }).collect(), c)
+            (s, c)
+        })
+        .collect();
+    sums.into_iter().map(|(s, c)| (if c > 0 { (s / c as f64).sqrt() } else { f64::NAN }, c)).unzip()
 }
 
 /// Every output's residual (samples x accelerometers; NaN where an output is not used).
@@ -61,20 +68,21 @@ pub fn residuals(array: &Array, params: &SensorSet, d: &DynamicData, motion: &[S
     })
 }
 
-/// The leverage factor `c_j / (c_j - l_j)` of accelerometer `j` (module docs); infinite when the
-/// per-sample unknowns use up its outputs.
-pub fn leverage(d: &DynamicData, j: usize, local: f64) -> f64 {
+/// The leverage factor `c_j / (c_j - l_j)` of every accelerometer `j` (module docs); infinite
+/// where the per-sample unknowns use up its outputs. One pass over the samples, each sample's
+/// used outputs counted once.
+pub fn leverages(d: &DynamicData, local: f64) -> Vec<f64> {
     let n = d.outputs.ncols();
-    let mut count = 0.0;
-    let mut lev = 0.0;
-    for i in 0..d.samples() {
-        if d.used[i * n + j] {
-            let m = (0..n).filter(|&k| d.used[i * n + k]).count() as f64;
-            count += 1.0;
-            lev += local / m;
+    let mut count = vec![0.0; n];
+    let mut lev = vec![0.0; n];
+    for used in d.used.chunks_exact(n.max(1)).take(d.samples()) {
+        let m = used.iter().filter(|&&u| u).count() as f64;
+        for j in (0..n).filter(|&j| used[j]) {
+            count[j] += 1.0;
+            lev[j] += local / m;
         }
     }
-    if count > lev { count / (count - lev) } else { f64::INFINITY }
+    count.iter().zip(&lev).map(|(&c, &l)| if c > l { c / (c - l) } else { f64::INFINITY }).collect()
 }
 
 /// The rotation-phase chi^2/dof (module docs) from the per-accelerometer residual RMS `rms` and
@@ -93,10 +101,11 @@ pub fn chi2_dof(d: &DynamicData, rms: &[f64], sigma: &[f64]) -> f64 {
 /// `sum_j c_j / L_j`, the denominator of [`chi2_dof`] (module docs).
 pub fn dof(d: &DynamicData, local: f64) -> f64 {
     let n = d.outputs.ncols();
+    let leverage = leverages(d, local);
     let mut den = 0.0;
-    for j in 0..n {
+    for (j, l) in leverage.iter().enumerate() {
         let count = (0..d.samples()).filter(|&i| d.used[i * n + j]).count() as f64;
-        den += count / leverage(d, j, local);
+        den += count / l;
     }
     den
 }
@@ -123,7 +132,7 @@ mod tests {
         for (reference, extra, k) in [(false, 0, 9.0), (true, 0, 6.0), (false, 3, 12.0)] {
             let d = data(1000, 24, reference, extra);
             assert_eq!(local_unknowns(&d), k);
-            let l = leverage(&d, 5, k);
+            let l = leverages(&d, k)[5];
             assert!((l - 24.0 / (24.0 - k)).abs() < 1e-12, "{l}");
         }
     }

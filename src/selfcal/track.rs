@@ -40,29 +40,40 @@ type Solved = (SampleMotion, f64);
 pub fn from_scratch(array: &Array, d: &DynamicData, dynamic_w: &[f64], params: &SensorSet) -> Vec<SampleMotion> {
     let sens = sensors(array, params);
     let n = array.len();
+    let row = |i: usize| -> Vec<f64> { d.outputs.row(i).iter().copied().collect() };
+    let fixed = |i: usize| d.reference_rate_rad_s.as_ref().map(|r| r[i]);
+    // The solves from the linear guess need no neighbour: every sample's, side by side.
+    let guessed: Vec<Solved> = (0..d.samples())
+        .into_par_iter()
+        .map(|i| {
+            let outputs = row(i);
+            let data = SampleData { outputs: &outputs, used: &d.used[i * n..(i + 1) * n], weights: dynamic_w };
+            let mut st = motion::linear_guess(&sens, &data);
+            if let Some(wr) = fixed(i) {
+                st.omega_rad_s = wr;
+            }
+            motion::solve(&sens, &data, st, fixed(i).is_some())
+        })
+        .collect();
     let mut motion = vec![SampleMotion::default(); d.samples()];
     for (s, e) in d.runs() {
         for i in s..e {
-            let row: Vec<f64> = d.outputs.row(i).iter().copied().collect();
-            let data = SampleData { outputs: &row, used: &d.used[i * n..(i + 1) * n], weights: dynamic_w };
-            let fixed = d.reference_rate_rad_s.as_ref().map(|r| r[i]);
-            let mut starts = vec![motion::linear_guess(&sens, &data)];
+            let (mut best, best_cost) = guessed[i];
             if i > s {
+                let outputs = row(i);
+                let data = SampleData { outputs: &outputs, used: &d.used[i * n..(i + 1) * n], weights: dynamic_w };
                 let prev = motion[i - 1];
                 let dt = d.t_s[i] - d.t_s[i - 1];
-                starts.push(SampleMotion { omega_rad_s: prev.omega_rad_s + prev.alpha_rad_s2 * dt, ..prev });
-            }
-            let mut best: Option<(SampleMotion, f64)> = None;
-            for mut st in starts {
-                if let Some(wr) = fixed {
+                let mut st = SampleMotion { omega_rad_s: prev.omega_rad_s + prev.alpha_rad_s2 * dt, ..prev };
+                if let Some(wr) = fixed(i) {
                     st.omega_rad_s = wr;
                 }
-                let (m, c) = motion::solve(&sens, &data, st, fixed.is_some());
-                if best.is_none_or(|(_, bc)| c < bc) {
-                    best = Some((m, c));
+                let (m, c) = motion::solve(&sens, &data, st, fixed(i).is_some());
+                if c < best_cost {
+                    best = m;
                 }
             }
-            motion[i] = best.map(|b| b.0).unwrap_or_default();
+            motion[i] = best;
         }
     }
     refine(array, d, dynamic_w, params, &motion, true)
@@ -95,8 +106,8 @@ pub fn refine(
         })
         .collect();
     let mut costs: Vec<f64> = first.iter().map(|f| f.1).collect();
-    costs.sort_by(f64::total_cmp);
-    let median = costs.get(costs.len() / 2).copied().unwrap_or(0.0);
+    let mid = costs.len() / 2;
+    let median = if costs.is_empty() { 0.0 } else { *costs.select_nth_unstable_by(mid, f64::total_cmp).1 };
     let run_of = run_of_sample(d);
     let neighbours = &|i: usize| -> Vec<usize> {
         [i.wrapping_sub(1), i + 1].into_iter().filter(|&k| k < d.samples() && run_of[k] == run_of[i]).collect()
