@@ -138,6 +138,37 @@ mod tests {
     }
 
     #[test]
+    fn each_accelerometers_leverage_counts_the_samples_where_it_is_used() {
+        // Outputs dropped in a pattern: sample i uses accelerometer j unless (i + j) % 5 == 0 or
+        // (j == 3 and i is even). For each j, l_j = sum over its used samples of k / m_i, written
+        // out here sample by sample.
+        let (samples, n, k) = (200, 24, 9.0);
+        let mut d = data(samples, n, false, 0);
+        for i in 0..samples {
+            for j in 0..n {
+                d.used[i * n + j] = (i + j) % 5 != 0 && !(j == 3 && i % 2 == 0);
+            }
+        }
+        let all = leverages(&d, k);
+        for j in 0..n {
+            let (mut c, mut l) = (0.0, 0.0);
+            for i in 0..samples {
+                if d.used[i * n + j] {
+                    let m = (0..n).filter(|&q| d.used[i * n + q]).count() as f64;
+                    c += 1.0;
+                    l += k / m;
+                }
+            }
+            assert!((all[j] - c / (c - l)).abs() < 1e-12 * all[j], "accelerometer {j}: {} vs {}", all[j], c / (c - l));
+        }
+        // Accelerometer 3 is used on half the samples a fifth of which drop it again: fewer than
+        // the others.
+        assert!(all[3] != all[4]);
+        // Unknowns that use up an accelerometer's outputs: infinite.
+        assert!(leverages(&d, 24.0).iter().all(|l| l.is_infinite()));
+    }
+
+    #[test]
     fn residuals_of_the_noise_alone_with_the_motion_fitted_give_one() {
         // Residual variance (m - k)/m of the noise's (what least squares leaves of white noise
         // after k unknowns a sample) is chi^2/dof 1, whatever each axis's noise.
