@@ -150,7 +150,7 @@ mod tests {
             }
         }
         let all = leverages(&d, k);
-        for j in 0..n {
+        for (j, &got) in all.iter().enumerate() {
             let (mut c, mut l) = (0.0, 0.0);
             for i in 0..samples {
                 if d.used[i * n + j] {
@@ -159,7 +159,7 @@ mod tests {
                     l += k / m;
                 }
             }
-            assert!((all[j] - c / (c - l)).abs() < 1e-12 * all[j], "accelerometer {j}: {} vs {}", all[j], c / (c - l));
+            assert!((got - c / (c - l)).abs() < 1e-12 * got, "accelerometer {j}: {got} vs {}", c / (c - l));
         }
         // Accelerometer 3 is used on half the samples a fifth of which drop it again: fewer than
         // the others.
