@@ -823,6 +823,57 @@ fn the_covariance_eliminates_each_samples_timing_motion() {
     assert!((1.1..1.6).contains(&locations), "the locations' sigmas grow {locations} times");
 }
 
+/// A sample left on the saddle at numerically zero rate (about 1e-158 rad/s, as real recording 1
+/// had one after 50 of Huber's iterations) does not poison the covariance: with its rate's columns
+/// that small, the reduced information and score equal those of the same sample at exactly zero
+/// rate (where the columns vanish and the dense route leaves them out) to 1e-12 of their norms,
+/// and are finite. Before the floor on the local diagonal (`timing_information::local_inverse`)
+/// both were NaN.
+#[test]
+fn a_sample_at_numerically_zero_rate_leaves_the_reduced_information_finite() {
+    use gfcal::selfcal::calibrate::prepare_dynamic;
+    use gfcal::selfcal::model::sensors;
+    use gfcal::selfcal::timing::accelerometer_ages;
+    use gfcal::selfcal::timing_information::{TimingSamples, reduced_information, reduced_score};
+    let (cell, sim) = short_clocked_recording(7);
+    let array = &cell.array;
+    let cal = calibrate(&sim.recording, array, &CalibrateSettings::default()).expect("calibrates");
+    let clocks = &cal.clocks.as_ref().expect("clocks fitted").clocks;
+    let prepared = prepare_dynamic(&sim.recording, &cal.segmentation, false, cal.gyro_bias_rad_s);
+    let d = prepared.data.expect("a rotation phase");
+    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.expect("every axis has its package")).collect();
+    let ages = accelerometer_ages(&d, clocks, &package_of);
+    let sens = sensors(&array.array, &cal.fit.params);
+    let weights: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    let at_rate = |omega_rad_s: nalgebra::Vector3<f64>| {
+        let mut motion = cal.fit.motion.clone();
+        motion[11].omega_rad_s = omega_rad_s;
+        motion
+    };
+    let tiny = at_rate(nalgebra::Vector3::new(-5.8e-159, -7.8e-158, -4.5e-158));
+    let zero = at_rate(nalgebra::Vector3::zeros());
+    let samples = |motion| TimingSamples {
+        sens: &sens,
+        data: &d,
+        motion,
+        weights: &weights,
+        output_w: None,
+        fixed: false,
+        ages: Some(&ages),
+    };
+    let (h_tiny, h_zero) = (reduced_information(&samples(&tiny)), reduced_information(&samples(&zero)));
+    let (g_tiny, g_zero) =
+        (reduced_score(&samples(&tiny), 0..d.samples()), reduced_score(&samples(&zero), 0..d.samples()));
+    assert!(h_tiny.iter().chain(g_tiny.iter()).all(|v| v.is_finite()), "a non-finite information or score");
+    let h_gap = (&h_tiny - &h_zero).norm() / h_zero.norm();
+    let g_gap = (&g_tiny - &g_zero).norm() / g_zero.norm();
+    assert!(h_gap < 1e-12 && g_gap < 1e-12, "information {h_gap:e}, score {g_gap:e}");
+    // At exactly zero rate the library agrees with the dense route (which leaves zero columns out).
+    let dense = dense_reduced_information(&sens, &d, &zero, &weights, Some(&ages));
+    let agreement = (&h_zero - &dense).norm() / dense.norm();
+    assert!(agreement < 1e-12, "the reduced information at zero rate against the dense route: {agreement:e}");
+}
+
 /// The clocks' columns in the library's nuisance (`discrepancy::recorded::blocks::ClockNuisance`)
 /// against central differences of the correction they stand for (`selfcal::clocked::
 /// corrected_dynamic`, each sample's timing motion held): each clocked package's rate offset, drift
