@@ -31,7 +31,6 @@ use rayon::prelude::*;
 
 use super::data::DynamicData;
 use super::model::{PER_ACCEL, SampleMotion, Sensor};
-use super::motion;
 use super::schur::mirror_upper_blocks;
 
 /// The motion's unknowns in a sample's local design.
@@ -152,19 +151,22 @@ type LocalVector = SVector<f64, 15>;
 
 /// The pseudo-inverse of a sample's local information: scaled to a unit diagonal (the timing
 /// columns are about 1e-4 of the motion's), a unit where a column is not observed (its diagonal
-/// zero or below `motion::UNOBSERVED_DIAGONAL` of the largest, as `selfcal::motion::observed`:
-/// an unknown the sample does not have, or a rate at numerically zero, whose columns vanish with
-/// it; their inverse's entries are not used), then Cholesky where its smallest pivot clears
-/// 1e-12, else the eigenvalues above 1e-12 of the largest (as
-/// `selfcal::motion::information_inverse`).
+/// zero or below `stats::NEGLIGIBLE_DIAGONAL` of the largest: an unknown the sample does not
+/// have, or a rate at numerically zero, whose columns vanish with it; their inverse's entries are
+/// not used), then Cholesky where its smallest pivot clears 1e-12, else the eigenvalues above
+/// 1e-12 of the largest (as `selfcal::motion::information_inverse`).
 ///
 /// The floor matters at a rate of about 1e-158 rad/s (a sample the fit left on the saddle at zero
 /// rate): the rate's diagonal, about 1e-318, was taken as observed, its scale `1/sqrt` overflowed
 /// on the way back, and the one sample made the whole covariance NaN (every parameter of real
-/// recording 1 reported unidentified after 50 of Huber's iterations).
+/// recording 1 reported unidentified after 50 of Huber's iterations). It is the diagnosis's floor
+/// (`stats::symmetric_pinv`), not the motion solve's (`motion::UNOBSERVED_DIAGONAL`, 1e-32): at
+/// that one the six real calibrations' sigmas moved by up to 0.3% (their values not at all), so
+/// some of their samples sit at rates of about 1e-14 rad/s or below; which convention is right
+/// there was not settled (`docs/status.md`, thirteenth session).
 fn local_inverse(hll: &Local) -> Local {
     let largest = (0..15).map(|k| hll[(k, k)]).fold(0.0_f64, f64::max);
-    let floor = motion::UNOBSERVED_DIAGONAL * largest;
+    let floor = crate::stats::NEGLIGIBLE_DIAGONAL * largest;
     let d = LocalVector::from_fn(|k, _| if hll[(k, k)] > floor { 1.0 / hll[(k, k)].sqrt() } else { 0.0 });
     let mut scaled = Local::from_fn(|r, c| d[r] * hll[(r, c)] * d[c]);
     for k in 0..15 {
