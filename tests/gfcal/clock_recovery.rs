@@ -518,6 +518,36 @@ fn short_clocked_recording(seed: u64) -> (gfcal::mc::protocol::ProtocolCell, gfc
     (cell, sim)
 }
 
+/// [`short_clocked_recording`] calibrated as `gfcal calibrate` calibrates it (default settings),
+/// with what the covariance's tests read at its solution: the rotation phase prepared, each
+/// output's package, the fitted sensors, each accelerometer's dynamic weight and each output's
+/// relative age at the fitted clocks.
+struct CalibratedShort {
+    cell: gfcal::mc::protocol::ProtocolCell,
+    cal: gfcal::selfcal::calibrate::Calibration,
+    d: gfcal::selfcal::data::DynamicData,
+    package_of: Vec<usize>,
+    sens: Vec<gfcal::selfcal::model::Sensor>,
+    weights: Vec<f64>,
+    ages: nalgebra::DMatrix<f64>,
+}
+
+fn calibrated_short_recording(seed: u64) -> CalibratedShort {
+    use gfcal::selfcal::calibrate::prepare_dynamic;
+    use gfcal::selfcal::model::sensors;
+    use gfcal::selfcal::timing::accelerometer_ages;
+    let (cell, sim) = short_clocked_recording(seed);
+    let cal = calibrate(&sim.recording, &cell.array, &CalibrateSettings::default()).expect("calibrates");
+    let clocks = &cal.clocks.as_ref().expect("clocks fitted").clocks;
+    let prepared = prepare_dynamic(&sim.recording, &cal.segmentation, false, cal.gyro_bias_rad_s);
+    let d = prepared.data.expect("a rotation phase");
+    let package_of: Vec<usize> = cell.array.package_of.iter().map(|p| p.expect("every axis has its package")).collect();
+    let ages = accelerometer_ages(&d, clocks, &package_of);
+    let sens = sensors(&cell.array.array, &cal.fit.params);
+    let weights: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    CalibratedShort { cell, cal, d, package_of, sens, weights, ages }
+}
+
 /// A run is a function of its input: one simulated recording with its clocks calibrated on one
 /// thread and on two gives the same bits (clocks, sigmas, parameters, misfits). It failed while the
 /// clock fit's normal equations were summed by rayon's fold/reduce, whose grouping of the sums
@@ -619,19 +649,12 @@ fn the_clock_models_gauge_has_exactly_the_three_common_null_directions() {
 /// 0.959, held 0.285 and 0.830 (seed 7, 2026-11-27).
 #[test]
 fn the_share_with_the_motion_refitted_does_not_depend_on_where_the_motion_stopped() {
-    use gfcal::selfcal::calibrate::prepare_dynamic;
-    use gfcal::selfcal::model::{SampleMotion, sensors};
+    use gfcal::selfcal::model::SampleMotion;
     use gfcal::selfcal::timing::ClockProblem;
     use gfcal::selfcal::track;
-    let (cell, sim) = short_clocked_recording(7);
+    let CalibratedShort { cell, cal, d, package_of, sens, weights, .. } = calibrated_short_recording(7);
     let array = &cell.array;
-    let cal = calibrate(&sim.recording, array, &CalibrateSettings::default()).expect("calibrates");
     let clocks = &cal.clocks.as_ref().expect("clocks fitted").clocks;
-    let prepared = prepare_dynamic(&sim.recording, &cal.segmentation, false, cal.gyro_bias_rad_s);
-    let d = prepared.data.expect("a rotation phase");
-    let sens = sensors(&array.array, &cal.fit.params);
-    let weights: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
-    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.expect("every axis has its package")).collect();
     let tracked = track::refine(&array.array, &d, &weights, &cal.fit.params, &cal.fit.motion, true);
     let stopped_short: Vec<SampleMotion> = tracked
         .iter()
@@ -771,22 +794,11 @@ fn dense_reduced_information(
 /// 1.31, the static kinds' 1.33 ((ac); until 2026-11-30 wrong ages made it look like 8-15).
 #[test]
 fn the_covariance_eliminates_each_samples_timing_motion() {
-    use gfcal::selfcal::calibrate::prepare_dynamic;
-    use gfcal::selfcal::model::sensors;
     use gfcal::selfcal::robust::timing_free_sigma_ratios;
-    use gfcal::selfcal::timing::accelerometer_ages;
     use gfcal::selfcal::timing_information::{TimingSamples, reduced_information};
-    let (cell, sim) = short_clocked_recording(7);
+    let CalibratedShort { cell, cal, d, sens, weights, ages, .. } = calibrated_short_recording(7);
     let array = &cell.array;
     let settings = CalibrateSettings::default();
-    let cal = calibrate(&sim.recording, array, &settings).expect("calibrates");
-    let clocks = &cal.clocks.as_ref().expect("clocks fitted").clocks;
-    let prepared = prepare_dynamic(&sim.recording, &cal.segmentation, false, cal.gyro_bias_rad_s);
-    let d = prepared.data.expect("a rotation phase");
-    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.expect("every axis has its package")).collect();
-    let ages = accelerometer_ages(&d, clocks, &package_of);
-    let sens = sensors(&array.array, &cal.fit.params);
-    let weights: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
     for with_ages in [None, Some(&ages)] {
         let samples = TimingSamples {
             sens: &sens,
@@ -831,20 +843,8 @@ fn the_covariance_eliminates_each_samples_timing_motion() {
 /// both were NaN.
 #[test]
 fn a_sample_at_numerically_zero_rate_leaves_the_reduced_information_finite() {
-    use gfcal::selfcal::calibrate::prepare_dynamic;
-    use gfcal::selfcal::model::sensors;
-    use gfcal::selfcal::timing::accelerometer_ages;
     use gfcal::selfcal::timing_information::{TimingSamples, reduced_information, reduced_score};
-    let (cell, sim) = short_clocked_recording(7);
-    let array = &cell.array;
-    let cal = calibrate(&sim.recording, array, &CalibrateSettings::default()).expect("calibrates");
-    let clocks = &cal.clocks.as_ref().expect("clocks fitted").clocks;
-    let prepared = prepare_dynamic(&sim.recording, &cal.segmentation, false, cal.gyro_bias_rad_s);
-    let d = prepared.data.expect("a rotation phase");
-    let package_of: Vec<usize> = array.package_of.iter().map(|p| p.expect("every axis has its package")).collect();
-    let ages = accelerometer_ages(&d, clocks, &package_of);
-    let sens = sensors(&array.array, &cal.fit.params);
-    let weights: Vec<f64> = cal.fit.dynamic_sigma_m_s2.iter().map(|s| 1.0 / (s * s)).collect();
+    let CalibratedShort { cal, d, sens, weights, ages, .. } = calibrated_short_recording(7);
     let at_rate = |omega_rad_s: nalgebra::Vector3<f64>| {
         let mut motion = cal.fit.motion.clone();
         motion[11].omega_rad_s = omega_rad_s;
