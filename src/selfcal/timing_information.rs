@@ -161,9 +161,9 @@ type LocalVector = SVector<f64, 15>;
 /// on the way back, and the one sample made the whole covariance NaN (every parameter of real
 /// recording 1 reported unidentified after 50 of Huber's iterations). It is the diagnosis's floor
 /// (`stats::symmetric_pinv`), not the motion solve's (`motion::UNOBSERVED_DIAGONAL`, 1e-32): at
-/// that one the six real calibrations' sigmas moved by up to 0.3% (their values not at all), so
-/// some of their samples sit at rates of about 1e-14 rad/s or below; which convention is right
-/// there was not settled (`docs/status.md`, thirteenth session).
+/// that one the six real calibrations' sigmas moved by up to 0.9% (their values not at all), so
+/// more of their samples sit at rates far below any physical one; which convention is right there
+/// was not settled (`docs/status.md`, thirteenth session).
 fn local_inverse(hll: &Local) -> Local {
     let largest = (0..15).map(|k| hll[(k, k)]).fold(0.0_f64, f64::max);
     let floor = crate::stats::NEGLIGIBLE_DIAGONAL * largest;
